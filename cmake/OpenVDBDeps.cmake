@@ -1,7 +1,7 @@
 # Debian's OpenVDB 10 (libopenvdb-dev) and NanoVDB 32.4 C++ headers
 # (libnanovdb-dev), as the imported target nvdb::openvdb. OpenVDB's headers also
 # need Boost, TBB and Imath 3.1.
-include_guard(GLOBAL)
+
 find_path(OPENVDB_INCLUDE_DIR openvdb/openvdb.h)
 find_library(OPENVDB_LIBRARY openvdb)
 find_library(TBB_LIBRARY tbb)
