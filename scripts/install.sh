@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Installs what nanovdb-mitsuba needs on Debian 12 (run as root), then builds it.
+# Idempotent: packages already present are not fetched again.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+APT_PACKAGES=(
+  cmake ninja-build g++ pkg-config
+  libnanovdb-dev      # NanoVDB 32.4 headers incl. PNanoVDB.h (the reference we translate)
+  libopenvdb-dev libboost-dev libtbb-dev libimath-dev  # OpenVDB 10: test grids, vdb2nvdb
+  libblosc-dev zlib1g-dev   # .nvdb codecs
+  doctest-dev
+  libllvm19           # Dr.Jit's LLVM backend fails with Debian's default libLLVM 14/15
+)
+PIP_PACKAGES=(mitsuba==3.9.1 drjit==1.5.0 nanobind==3.1.0 numpy==2.4.6 pytest==9.2.0)
+
+missing=()
+for p in "${APT_PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "== apt-get install ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -qq
+  apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+PYTHON=${PYTHON:-python3}
+if ! "$PYTHON" - <<'PY' 2>/dev/null
+import importlib.metadata as md, sys
+want = {"mitsuba": "3.9.1", "drjit": "1.5.0"}
+sys.exit(0 if all(md.version(k) == v for k, v in want.items()) and
+         all(md.version(k) for k in ("nanobind", "numpy", "pytest")) else 1)
+PY
+then
+  echo "== pip install ${PIP_PACKAGES[*]}"
+  "$PYTHON" -m pip install -q --disable-pip-version-check "${PIP_PACKAGES[@]}"
+fi
+
+echo "== build (build/)"
+cmake -S . -B build -G Ninja -DPython_EXECUTABLE="$(command -v "$PYTHON")" >/dev/null
+cmake --build build

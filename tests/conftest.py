@@ -1,0 +1,112 @@
+"""
+Shared fixtures for the nanovdbvolume pytest suite.
+
+The suite loads build/plugins/nanovdbvolume.so through Mitsuba's file resolver
+(NVDB_BUILD_DIR overrides the build directory) and generates its volumes with
+build/bin/nvdb_make_test_grid, which writes them through NanoVDB's own writer
+(tests/grids.cpp), together with dense Mitsuba .vol exports of the same
+active box for gridvolume.
+"""
+
+import os
+import subprocess
+import struct
+from pathlib import Path
+
+import pytest
+import drjit as dr
+import mitsuba as mi
+
+ROOT = Path(__file__).resolve().parent.parent
+BUILD = Path(os.environ.get("NVDB_BUILD_DIR", ROOT / "build")).resolve()
+MAKE_GRID = BUILD / "bin" / "nvdb_make_test_grid"
+SHARED_DATA = (ROOT.parent / "shared" / "data").resolve()
+
+
+def has_cuda():
+    try:
+        return dr.has_backend(dr.JitBackend.CUDA)
+    except Exception:
+        return False
+
+
+def _setup_variant(name):
+    if name not in mi.variants():
+        pytest.skip(f"variant {name} is not part of this Mitsuba build")
+    if name.startswith("cuda") and not has_cuda():
+        pytest.skip(f"{name}: no CUDA device on this machine")
+    mi.set_variant(name)
+    # Our plugin directory goes first: mitsuba looks up plugins/<name>.so
+    mi.file_resolver().prepend(str(BUILD))
+
+
+def pytest_generate_tests(metafunc):
+    # "variants_all": every non-CUDA variant, plus the CUDA ones when a GPU exists
+    if "variants_all" in metafunc.fixturenames:
+        names = [v for v in mi.variants() if not v.startswith("cuda") or has_cuda()]
+        metafunc.parametrize("variants_all", names, indirect=True)
+    # "variants_jit_and_scalar": the two variants the issue names, plus CUDA on a GPU
+    if "variants_rgb" in metafunc.fixturenames:
+        names = ["scalar_rgb", "llvm_ad_rgb"] + (["cuda_ad_rgb"] if has_cuda() else [])
+        metafunc.parametrize("variants_rgb", names, indirect=True)
+
+
+@pytest.fixture
+def variants_all(request):
+    _setup_variant(request.param)
+    return request.param
+
+
+@pytest.fixture
+def variants_rgb(request):
+    _setup_variant(request.param)
+    return request.param
+
+
+@pytest.fixture
+def variant_scalar_rgb():
+    _setup_variant("scalar_rgb")
+
+
+@pytest.fixture
+def variant_llvm_ad_rgb():
+    _setup_variant("llvm_ad_rgb")
+
+
+class GridFactory:
+    """Writes named test grids once per session (nvdb + dense vol)."""
+
+    def __init__(self, directory):
+        self.dir = Path(directory)
+        self.cache = {}
+
+    def __call__(self, name, codec="none", dense=True):
+        key = (name, codec, dense)
+        if key not in self.cache:
+            if not MAKE_GRID.exists():
+                pytest.fail(f"{MAKE_GRID} is missing: build the project first")
+            nvdb = self.dir / f"{name}_{codec}.nvdb"
+            vol = self.dir / f"{name}.vol"
+            cmd = [str(MAKE_GRID), name, str(nvdb), "--codec", codec]
+            if dense:
+                cmd += ["--dense", str(vol)]
+            subprocess.run(cmd, check=True, capture_output=True, text=True)
+            self.cache[key] = (str(nvdb), str(vol) if dense else None)
+        return self.cache[key]
+
+
+@pytest.fixture(scope="session")
+def make_grid(tmp_path_factory):
+    return GridFactory(tmp_path_factory.mktemp("grids"))
+
+
+def read_vol(path):
+    """Reads a Mitsuba .vol (version 3, float32, 1 channel): (res, bbox, list)."""
+    data = Path(path).read_bytes()
+    assert data[:3] == b"VOL" and data[3] == 3
+    enc, xres, yres, zres, ch = struct.unpack_from("<5i", data, 4)
+    assert enc == 1 and ch == 1
+    bbox = struct.unpack_from("<6f", data, 24)
+    n = xres * yres * zres
+    values = struct.unpack_from(f"<{n}f", data, 48)
+    return (xres, yres, zres), bbox, values
