@@ -164,7 +164,7 @@ void compare(const char *backend, const TestGrid &g, const Reads &ref, const Rea
             CHECK(ref.value[i] == got.value[i]);
         }
     }
-    MESSAGE(backend, ", grid ", g.name, ": ", g.coords.size(), " reads identical to PNanoVDB: ",
+    MESSAGE(std::string(backend), ", grid ", g.name, ": ", g.coords.size(), " reads identical to PNanoVDB: ",
             g.coords.size() - mismatches, "; per level (leaf, lower, upper, root tile, "
             "background) = ", levels[0], ", ", levels[1], ", ", levels[2], ", ", levels[3],
             ", ", levels[4]);
