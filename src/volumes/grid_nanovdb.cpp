@@ -79,7 +79,8 @@ The file is validated once when it is loaded (every node offset of the tree
 must point inside it), so lookups can trust it. ``max()`` is the maximum of
 every value that a lookup can return (background, tiles and all leaf values,
 active or not), a true upper bound for the ``heterogeneous`` medium's
-majorant. Grids containing NaN or infinite values are rejected. Only float
+majorant; trilinear results are clamped to it, because rounded interpolation
+weights can overshoot the largest corner value by a few ulps. Grids containing NaN or infinite values are rejected. Only float
 grids are supported; other grid types fail with a message that names them.
 
 .. tabs::
@@ -148,6 +149,7 @@ public:
                   m_filename, m_grid_name, (unsigned long long) info.nan_count,
                   (unsigned long long) info.inf_count);
         m_max = info.value_max;
+        m_max_opaque = dr::opaque<Float>(m_max);
 
         // Active index box [min, max] (inclusive). An empty grid reads as the
         // single voxel at the origin, i.e. its background everywhere.
@@ -293,7 +295,11 @@ private:
             result = dr::fmadd(value_at(ijk0 + Vector3i(bit[0], bit[1], bit[2]), active),
                                weight, result);
         }
-        return result;
+        // The rounded weights can sum to slightly more than 1, so the result
+        // could exceed the largest corner by a few ulps (measured: 3 ulps on
+        // a level set whose values sit at its maximum). The heterogeneous
+        // medium needs max() to be a true bound, so clamp.
+        return dr::minimum(result, m_max_opaque);
     }
 
     /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal)
@@ -412,6 +418,7 @@ private:
     Vector3i m_min;            // active box minimum (opaque on JIT backends)
     Vector3f m_dims;           // active box extent, as float (opaque)
     Matrix4f m_index_from_world; // use_grid_transform: world -> index - min
+    Float m_max_opaque;        // max(), the clamp of trilinear results
 
     ScalarVector3i m_min_scalar;
     ScalarVector3i m_resolution;
@@ -422,7 +429,7 @@ private:
     bool m_use_grid_transform = false;
     std::string m_filename, m_grid_name;
 
-    MI_TRAVERSE_CB(Base, m_buffer, m_root, m_min, m_dims, m_index_from_world)
+    MI_TRAVERSE_CB(Base, m_buffer, m_root, m_min, m_dims, m_index_from_world, m_max_opaque)
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)
