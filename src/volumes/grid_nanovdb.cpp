@@ -285,6 +285,11 @@ private:
                  w0 = 1.f - w1;
         Vector3i ijk0 = base + m_min;
 
+        // The 8 corners in one traversal (see root_get_stencil_addresses),
+        // summed in the order and with the weights of Dr.Jit's texture
+        ndr::Coord<UInt32> c(ijk0.x(), ijk0.y(), ijk0.z());
+        dr::Array<UInt32, 8> address =
+            ndr::root_get_stencil_addresses(buffer(), ndr::RootHandle<UInt32>{ m_root }, c, active);
         Float result = 0.f;
         for (uint32_t corner = 0; corner < 8; ++corner) {
             int32_t bit[3] = { (int32_t) (corner & 1), (int32_t) ((corner >> 1) & 1),
@@ -292,8 +297,8 @@ private:
             Float weight = 1.f;
             for (uint32_t k = 0; k < 3; ++k)
                 weight = weight * (bit[k] ? w1[k] : w0[k]);
-            result = dr::fmadd(value_at(ijk0 + Vector3i(bit[0], bit[1], bit[2]), active),
-                               weight, result);
+            result = dr::fmadd(ndr::read_float(buffer(), address[corner], active), weight,
+                               result);
         }
         // The rounded weights can sum to slightly more than 1, so the result
         // could exceed the largest corner by a few ulps (measured: 3 ulps on
@@ -302,16 +307,19 @@ private:
         return dr::minimum(result, m_max_opaque);
     }
 
+    /// The buffer as the translation reads it: a JIT array or a host pointer
+    decltype(auto) buffer() const {
+        if constexpr (dr::is_jit_v<Float>)
+            return (const UInt32 &) m_buffer;
+        else
+            return static_cast<const uint32_t *>(m_buffer.get());
+    }
+
     /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal)
     Float value_at(const Vector3i &ijk, Mask active) const {
         namespace ndr = nanovdb_drjit;
-        ndr::RootHandle<UInt32> root{ m_root };
         ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
-        if constexpr (dr::is_jit_v<Float>)
-            return ndr::root_get_value(m_buffer, root, c, active);
-        else
-            return ndr::root_get_value(static_cast<const uint32_t *>(m_buffer.get()),
-                                       root, c, active);
+        return ndr::root_get_value(buffer(), ndr::RootHandle<UInt32>{ m_root }, c, active);
     }
 
     /// With use_grid_transform: local space = the grid's world space.
