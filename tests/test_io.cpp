@@ -466,6 +466,14 @@ TEST_CASE("validate_float_grid rejects hostile buffers") {
         poke<uint64_t>(b, tree_off + 24, ~uint64_t(0));
         CHECK_IO_ERROR(validate(b), p, "root node offset", "outside");
     }
+    SUBCASE("misaligned root and node arrays") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 24, root_off - tree_off + 8);
+        CHECK_IO_ERROR(validate(b), p, "root node", "not 32-byte aligned");
+        b = good;
+        poke<uint64_t>(b, tree_off + 8, lower0 - tree_off + 4);
+        CHECK_IO_ERROR(validate(b), p, "lower node array", "not 32-byte aligned");
+    }
     SUBCASE("root table_size absurd") {
         Bytes b = good;
         poke<uint32_t>(b, root_off + 24, 0xffffffffu);
