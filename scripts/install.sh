@@ -26,6 +26,16 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 
 PYTHON=${PYTHON:-python3}
+# Debian's own python3 ships without pip and is "externally managed" (PEP 668):
+# install pip from Debian, and let it install into /usr/local as root.
+if ! "$PYTHON" -m pip --version >/dev/null 2>&1; then
+  echo "== apt-get install python3-pip"
+  apt-get update -qq && apt-get install -y -qq --no-install-recommends python3-pip >/dev/null
+fi
+PIP_FLAGS=(-q --disable-pip-version-check)
+if [ -f "$("$PYTHON" -c 'import sysconfig; print(sysconfig.get_path("stdlib"))')/EXTERNALLY-MANAGED" ]; then
+  PIP_FLAGS+=(--break-system-packages)
+fi
 if ! "$PYTHON" - <<'PY' 2>/dev/null
 import importlib.metadata as md, sys
 want = {"mitsuba": "3.9.1", "drjit": "1.5.0"}
@@ -34,7 +44,7 @@ sys.exit(0 if all(md.version(k) == v for k, v in want.items()) and
 PY
 then
   echo "== pip install ${PIP_PACKAGES[*]}"
-  "$PYTHON" -m pip install -q --disable-pip-version-check "${PIP_PACKAGES[@]}"
+  "$PYTHON" -m pip install "${PIP_FLAGS[@]}" "${PIP_PACKAGES[@]}"
 fi
 
 echo "== build (build/)"
