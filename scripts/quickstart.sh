@@ -5,4 +5,4 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install.sh
 ./build/bin/nvdb_make_test_grid noisy_cloud scenes/cloud.nvdb
-python3 scenes/render_cloud.py scenes/cloud.nvdb scenes/cloud.png
+"${PYTHON:-python3}" scenes/render_cloud.py scenes/cloud.nvdb scenes/cloud.png

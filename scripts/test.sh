@@ -7,4 +7,4 @@ bash scripts/install.sh
 echo "== doctest (ctest)"
 ctest --test-dir build --output-on-failure
 echo "== pytest"
-python3 -m pytest -q tests -p no:cacheprovider "$@"
+"${PYTHON:-python3}" -m pytest -q tests -p no:cacheprovider "$@"
