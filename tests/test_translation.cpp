@@ -69,6 +69,18 @@ struct Reads {
     void resize(size_t n) { tile.resize(n); address.resize(n); level.resize(n); value.resize(n); }
 };
 
+/// The first n query coordinates of a grid as a JIT coordinate array
+template <typename UInt32>
+ndr::Coord<UInt32> jit_coords(const std::vector<Coord3> &coords, size_t n) {
+    using Int32 = dr::int32_array_t<UInt32>;
+    std::vector<int32_t> x(n), y(n), z(n);
+    for (size_t i = 0; i < n; ++i) {
+        x[i] = coords[i][0]; y[i] = coords[i][1]; z[i] = coords[i][2];
+    }
+    return { dr::load<Int32>(x.data(), n), dr::load<Int32>(y.data(), n),
+             dr::load<Int32>(z.data(), n) };
+}
+
 /// Reference: PNanoVDB itself
 Reads read_pnanovdb(const TestGrid &g) {
     pnanovdb_buf_t buf;
@@ -114,15 +126,9 @@ template <typename UInt32> Reads read_translation(const TestGrid &g) {
             r.value[i]   = ndr::read_uint32(buf, al.address, true);
         }
     } else {
-        using Int32 = dr::int32_array_t<UInt32>;
         using Mask = dr::mask_t<UInt32>;
-        std::vector<int32_t> x(n), y(n), z(n);
-        for (size_t i = 0; i < n; ++i) {
-            x[i] = g.coords[i][0]; y[i] = g.coords[i][1]; z[i] = g.coords[i][2];
-        }
         UInt32 buf = dr::load<UInt32>(g.words.data(), g.words.size());
-        ndr::Coord<UInt32> ijk(dr::load<Int32>(x.data(), n), dr::load<Int32>(y.data(), n),
-                               dr::load<Int32>(z.data(), n));
+        ndr::Coord<UInt32> ijk = jit_coords<UInt32>(g.coords, n);
         Mask active = dr::full<Mask>(true, n);
 
         ndr::GridHandle<UInt32> grid{ dr::opaque<UInt32>(0u) };
@@ -198,15 +204,9 @@ template <typename UInt32> std::vector<uint64_t> stencil_translation(const TestG
                 out[8 * i + c] = uint64_t(a[c]) * 4;
         }
     } else {
-        using Int32 = dr::int32_array_t<UInt32>;
         using Mask = dr::mask_t<UInt32>;
-        std::vector<int32_t> x(n), y(n), z(n);
-        for (size_t i = 0; i < n; ++i) {
-            x[i] = g.coords[i][0]; y[i] = g.coords[i][1]; z[i] = g.coords[i][2];
-        }
         UInt32 buf = dr::load<UInt32>(g.words.data(), g.words.size());
-        ndr::Coord<UInt32> ijk(dr::load<Int32>(x.data(), n), dr::load<Int32>(y.data(), n),
-                               dr::load<Int32>(z.data(), n));
+        ndr::Coord<UInt32> ijk = jit_coords<UInt32>(g.coords, n);
         Mask active = dr::full<Mask>(true, n);
         ndr::GridHandle<UInt32> grid{ dr::opaque<UInt32>(0u) };
         auto root = ndr::tree_get_root(buf, ndr::grid_get_tree(grid), active);
@@ -334,7 +334,6 @@ TEST_CASE("CUDA: root tile, value address, level and value match PNanoVDB" *
 TEST_CASE("inactive lanes never read: a corrupt child offset behind a false mask is harmless") {
     init_backend<dr::LLVMArray<uint32_t>>();
     using UInt32 = dr::LLVMArray<uint32_t>;
-    using Int32 = dr::LLVMArray<int32_t>;
     using Mask = dr::LLVMArray<bool>;
 
     // Take a grid with a root tile child, point every root tile's child far
@@ -349,14 +348,8 @@ TEST_CASE("inactive lanes never read: a corrupt child offset behind a false mask
         g.words[tile + 3] = 0u;
     }
     size_t n = 4096;
-    std::vector<int32_t> x(n), y(n), z(n);
-    std::vector<uint32_t> m(n, 0u);
-    for (size_t i = 0; i < n; ++i) {
-        x[i] = g.coords[i][0]; y[i] = g.coords[i][1]; z[i] = g.coords[i][2];
-    }
     UInt32 buf = dr::load<UInt32>(g.words.data(), g.words.size());
-    ndr::Coord<UInt32> ijk(dr::load<Int32>(x.data(), n), dr::load<Int32>(y.data(), n),
-                           dr::load<Int32>(z.data(), n));
+    ndr::Coord<UInt32> ijk = jit_coords<UInt32>(g.coords, n);
     Mask active = dr::full<Mask>(false, n);
     auto al = ndr::root_get_value_address_and_level(buf, ndr::RootHandle<UInt32>{ root.address },
                                                     ijk, active);
