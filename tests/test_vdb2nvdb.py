@@ -1,0 +1,555 @@
+"""
+vdb2nvdb, the OpenVDB -> NanoVDB converter (tools/vdb2nvdb), checked against
+independent references: OpenVDB's own reads (printed by --probe, and the
+converter's --verify path), the nanovdbvolume plugin (its own PNanoVDB
+translation, not NanoVDB's C++ reader), Mitsuba's gridvolume on the dense
+export, hand-derived values, and the real files in ../shared/data.
+
+The binary: $NVDB_VDB2NVDB, else $NVDB_BUILD_DIR/bin/vdb2nvdb (default
+build/bin/vdb2nvdb). The plugin comes from $NVDB_BUILD_DIR (conftest.BUILD).
+"""
+
+import os
+import re
+import struct
+import subprocess
+import sysconfig
+from pathlib import Path
+
+import numpy as np
+import pytest
+import drjit as dr
+import mitsuba as mi
+
+from conftest import BUILD, SHARED_DATA, read_vol
+from test_nanovdbvolume import eval_points, load_dense, load_nvdb, random_points, render
+
+VDB2NVDB = Path(os.environ.get("NVDB_VDB2NVDB", BUILD / "bin" / "vdb2nvdb")).resolve()
+
+# The generated cloud: index -> world is diag(0.01, 0.01, 0.0125) + (0.2, 1.0, -0.3)
+CLOUD_SCALE = np.array([0.01, 0.01, 0.0125])
+CLOUD_OFFSET = np.array([0.2, 1.0, -0.3])
+
+
+# ---------------------------------------------------------------------------
+#  Helpers
+# ---------------------------------------------------------------------------
+
+def run(*args, rc=0):
+    """Runs vdb2nvdb; checks its exit status (rc=None: any)."""
+    if not VDB2NVDB.exists():
+        pytest.fail(f"{VDB2NVDB} is missing: build the vdb2nvdb target first")
+    p = subprocess.run([str(VDB2NVDB), *map(str, args)], capture_output=True, text=True,
+                       timeout=300)
+    if rc is not None:
+        assert p.returncode == rc, (
+            f"exit {p.returncode}, expected {rc}\nstdout:\n{p.stdout}\nstderr:\n{p.stderr}")
+    return p
+
+
+def leftovers(directory):
+    """Temporary files the converter failed to clean up."""
+    return [p.name for p in Path(directory).iterdir() if ".tmp-" in p.name]
+
+
+def parse_probes(stdout):
+    """{(grid, (i, j, k)): (openvdb value, on, nanovdb value, on)} from --probe."""
+    out = {}
+    pat = re.compile(r'^probe "(.*)" (-?\d+),(-?\d+),(-?\d+) openvdb (\S+) (on|off) '
+                     r'nanovdb (\S+) (on|off)$')
+    for line in stdout.splitlines():
+        m = pat.match(line)
+        if m:
+            g, i, j, k, a, aon, b, bon = m.groups()
+            out[g, (int(i), int(j), int(k))] = (np.float32(a), aon == "on",
+                                                 np.float32(b), bon == "on")
+    return out
+
+
+def parse_bbox(stats):
+    """[(min), (max)] of the first 'active index bbox' line of --stats."""
+    m = re.search(r"active index bbox\s+\[\((-?\d+), (-?\d+), (-?\d+)\), "
+                  r"\((-?\d+), (-?\d+), (-?\d+)\)\]", stats)
+    v = list(map(int, m.groups()))
+    return np.array(v[:3]), np.array(v[3:])
+
+
+def local_of_voxel(ijk, lo, hi):
+    """nanovdbvolume's local point (use_grid_transform=false) at voxel centres."""
+    d = (hi - lo + 1).astype(np.float64)
+    return ((np.asarray(ijk, dtype=np.float64) - lo + 0.5) / d).astype(np.float32)
+
+
+class Generated:
+    """Generated .vdb files, once per session (vdb2nvdb generate CASE OUT.vdb)."""
+
+    def __init__(self, directory):
+        self.dir = Path(directory)
+        self.cache = {}
+
+    def __call__(self, case):
+        if case not in self.cache:
+            path = self.dir / f"{case}.vdb"
+            run("generate", case, path, "--quiet")
+            self.cache[case] = path
+        return self.cache[case]
+
+
+@pytest.fixture(scope="session")
+def gen(tmp_path_factory):
+    return Generated(tmp_path_factory.mktemp("vdb"))
+
+
+@pytest.fixture(scope="session")
+def cloud(gen, tmp_path_factory):
+    """The cloud converted once: (.nvdb, dense .vol, --stats output)."""
+    d = tmp_path_factory.mktemp("cloud")
+    nvdb, vol = d / "cloud.nvdb", d / "cloud.vol"
+    p = run(gen("cloud"), nvdb, "--dense", vol, "--stats")
+    return nvdb, vol, p.stdout
+
+
+# ---------------------------------------------------------------------------
+#  Command line
+# ---------------------------------------------------------------------------
+
+def test01_help_explains_every_option():
+    p = run("--help")
+    for opt in ["--grid", "--list", "--keep-level-sets", "--quantize", "--tolerance",
+                "--codec", "--verify", "--seed", "--verify-only", "--stats", "--dense",
+                "--max-dense-bytes", "--probe", "--quiet", "--help", "generate",
+                "constant_300", "constant_934", "random_300", "random_934", "sphere_ls",
+                "cloud", "multi"]:
+        assert opt in p.stdout, opt
+    assert "--corrupt-for-test" not in p.stdout  # test-only, hidden
+    p = run("--frobnicate", "a.vdb", "b.nvdb", rc=2)
+    assert "unknown option" in p.stderr and "usage:" in p.stderr
+    p = run("a.vdb", rc=2)
+    assert "missing" in p.stderr
+
+
+def test02_list_shows_grids_in_file_order(gen):
+    p = run("--list", gen("multi"))
+    rows = [l.split() for l in p.stdout.splitlines()[2:]]
+    assert [r[1] for r in rows] == ['"density"', '"vel"', '"ls_sphere"', '"flags"',
+                                    '"temperature"']
+    assert [r[2] for r in rows] == ["float", "vec3s", "float", "int32", "float"]
+    text = p.stdout
+    assert "level set" in text and "fog volume" in text
+    # Hand-derived counts: 10^3 vel, 9^3 flags, 32 x 32 x 16 temperature
+    assert re.search(r'"vel"\s+vec3s\s+unknown\s+1,000\s+\[\(0, 0, 0\), \(9, 9, 9\)\]', text)
+    assert re.search(r'"flags"\s+int32\s+unknown\s+729\s', text)
+    assert re.search(r'"temperature"\s+float\s+unknown\s+16,384\s+\[\(40, -8, 0\), \(71, 23, 15\)\]',
+                     text)
+
+
+# ---------------------------------------------------------------------------
+#  Conversion: grids, order, names, values
+# ---------------------------------------------------------------------------
+
+def plugin_grid_names(nvdb):
+    """Grid names in file order, as the nanovdbvolume plugin reads them."""
+    mi.set_variant("scalar_rgb")
+    mi.file_resolver().prepend(str(BUILD))
+    with pytest.raises(RuntimeError) as e:
+        load_nvdb(str(nvdb), grid="999")
+    return re.findall(r'\d+: "([^"]*)" \(float\)', str(e.value))
+
+
+def test03_every_float_grid_in_file_order(gen, tmp_path):
+    out = tmp_path / "multi.nvdb"
+    p = run(gen("multi"), out)
+    # one notice per skipped grid, naming it and its type
+    notes = [l for l in p.stderr.splitlines() if "skipping" in l]
+    assert len(notes) == 2
+    assert '"vel" (vec3s' in notes[0] and '"flags" (int32' in notes[1]
+    assert plugin_grid_names(out) == ["density", "ls_sphere", "temperature"]
+    assert p.stdout.count("verified") == 3 and "identical" in p.stdout
+
+
+def test04_grid_selection_keeps_file_order(gen, tmp_path):
+    out = tmp_path / "sel.nvdb"
+    p = run(gen("multi"), out, "--grid", "temperature", "--grid", "density")
+    assert "skipping" not in p.stderr
+    assert plugin_grid_names(out) == ["density", "temperature"]
+
+
+def test05_values_match_openvdb_through_the_plugin(variants_rgb, cloud, tmp_path, gen):
+    # --probe prints what OpenVDB reads (after the conversion's own pipeline)
+    # and what NanoVDB's reader reads back; the plugin is a third reader.
+    nvdb, _, stats = cloud
+    lo, hi = parse_bbox(stats)
+    rng = np.random.default_rng(5)
+    ijk = np.stack([rng.integers(lo[k], hi[k] + 1, 150) for k in range(3)], axis=1)
+    args = []
+    for c in ijk:
+        args += ["--probe", f"{c[0]},{c[1]},{c[2]}"]
+    p = run(gen("cloud"), tmp_path / "probe.nvdb", "--verify", "0", *args)
+    probes = parse_probes(p.stdout)
+    assert len(probes) == len({tuple(c) for c in ijk})
+    expected = np.array([probes["density", tuple(map(int, c))][0] for c in ijk], dtype=np.float32)
+    assert all(a == b and aon == bon for a, aon, b, bon in probes.values())
+    assert np.count_nonzero(expected) > 20  # the samples hit the cloud, not only empty space
+    vol = load_nvdb(str(nvdb), filter_type="nearest")
+    got = eval_points(vol, local_of_voxel(ijk, lo, hi))
+    assert np.array_equal(got, expected)
+
+
+def test06_level_set_becomes_fog(gen, tmp_path):
+    # sphere_ls: radius 1, centre (0.1, -0.2, 0.3) = index (5, -10, 15), voxel
+    # size 0.02, band 3 voxels (background 0.06). sdfToFogVolume: inside the
+    # band fog = -sdf / 0.06, interior 1 (active), exterior 0 (inactive).
+    ks = list(range(0, 60, 3)) + list(range(44, 56))
+    probes = [f"{5 + k},-10,15" for k in ks] + ["5,-10,15", "300,0,0", "-2000,5,5"]
+    args = sum((["--probe", c] for c in probes), [])
+    p = run(gen("sphere_ls"), tmp_path / "fog.nvdb", "--stats", *args)
+    assert "level set -> fog volume" in p.stdout and "(float, fog volume)" in p.stdout
+    pr = parse_probes(p.stdout)
+    for k in ks:
+        fog, on, nano, nano_on = pr["ls_sphere", (5 + k, -10, 15)]
+        assert fog == nano and on == nano_on
+        expected = np.clip((1.0 - 0.02 * k) / 0.06, 0.0, 1.0)
+        assert abs(fog - expected) < 2e-4, (k, fog, expected)
+        assert 0.0 <= fog <= 1.0
+        assert on == (fog > 0)   # exterior inactive, interior and inner band active
+    for far in [(300, 0, 0), (-2000, 5, 5)]:
+        assert pr["ls_sphere", far][:2] == (0.0, False)
+    # Monotonic ramp from the centre outwards
+    ramp = [pr["ls_sphere", (5 + k, -10, 15)][0] for k in range(44, 56)]
+    assert all(a >= b for a, b in zip(ramp, ramp[1:]))
+    # The plugin sees a fog volume: max 1, background 0
+    mi.set_variant("scalar_rgb")
+    mi.file_resolver().prepend(str(BUILD))
+    vol = load_nvdb(str(tmp_path / "fog.nvdb"), filter_type="nearest")
+    assert vol.max() == 1.0
+    assert eval_points(vol, [[0.5, 0.5, 0.5]])[0] == 1.0
+
+
+def test07_keep_level_sets(tmp_path):
+    # The icosahedron's background is 0.15 (README of shared/data)
+    src = SHARED_DATA / "openvdb_icosahedron_ls.vdb"
+    out = tmp_path / "ls.nvdb"
+    p = run(src, out, "--keep-level-sets", "--probe", "0,0,0", "--probe", "500,0,0", "--stats")
+    assert "(float, level set)" in p.stdout and "fog" not in p.stdout
+    pr = parse_probes(p.stdout)
+    # (stored as half floats: 0.15002441)
+    assert pr["ls_icosahedron", (500, 0, 0)][0] == pytest.approx(0.15, abs=1e-4)
+    assert pr["ls_icosahedron", (0, 0, 0)][0] == -pr["ls_icosahedron", (500, 0, 0)][0]
+    mi.set_variant("scalar_rgb")
+    mi.file_resolver().prepend(str(BUILD))
+    vol = load_nvdb(str(out), filter_type="nearest")
+    assert np.allclose(eval_points(vol, [[-3, 0.5, 0.5]]), 0.15, atol=1e-4)
+    # ... and the default turns it into fog: background 0, values in [0, 1]
+    out2 = tmp_path / "fog.nvdb"
+    run(src, out2)
+    vol = load_nvdb(str(out2), filter_type="nearest")
+    assert vol.max() == 1.0
+    v = eval_points(vol, random_points(2000, 7))
+    assert v.min() >= 0.0 and v.max() <= 1.0
+    assert np.allclose(eval_points(vol, [[-3, 0.5, 0.5]]), 0.0)
+
+
+# ---------------------------------------------------------------------------
+#  Dense export and renders
+# ---------------------------------------------------------------------------
+
+def test08_dense_one_file_per_grid(gen, tmp_path):
+    run(gen("multi"), tmp_path / "m.nvdb", "--dense", tmp_path / "m.vol")
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["m.nvdb", "m_density.vol", "m_ls_sphere.vol", "m_temperature.vol"]
+    res, _, values = read_vol(tmp_path / "m_temperature.vol")
+    assert res == (32, 32, 16)
+    assert 300.0 <= min(values) and max(values) <= 400.0
+    # With one grid the name is taken as given
+    run(gen("multi"), tmp_path / "t.nvdb", "--grid", "temperature", "--dense", tmp_path / "t.vol")
+    assert (tmp_path / "t.vol").exists()
+
+
+def test09_dense_bbox_is_the_cells_world_extent(cloud):
+    nvdb, vol, stats = cloud
+    lo, hi = parse_bbox(stats)
+    res, bbox, _ = read_vol(vol)
+    assert list(res) == list(hi - lo + 1)
+    np.testing.assert_allclose(bbox[:3], CLOUD_SCALE * (lo - 0.5) + CLOUD_OFFSET, rtol=1e-6)
+    np.testing.assert_allclose(bbox[3:], CLOUD_SCALE * (hi + 0.5) + CLOUD_OFFSET, rtol=1e-6)
+
+
+def test10_dense_nearest_equals_nvdb(variants_rgb, cloud):
+    nvdb, vol, _ = cloud
+    nano = load_nvdb(str(nvdb), filter_type="nearest")
+    dense = load_dense(str(vol), filter_type="nearest")
+    assert list(nano.resolution()) == list(dense.resolution())
+    pts = random_points(100_000 if dr.is_jit_v(mi.Float) else 3000, 10, 0.0, 0.999999)
+    a, b = eval_points(nano, pts), eval_points(dense, pts)
+    assert np.array_equal(a, b), f"{np.sum(a != b)} of {len(a)} lookups differ"
+
+
+def test11_grid_bbox_lines_up_with_grid_transform(variants_rgb, cloud):
+    # gridvolume(use_grid_bbox) spans the .vol's bbox (the cells' world
+    # extent); nanovdbvolume(use_grid_transform) uses the grid's own map:
+    # the same voxel at every world point (axis-aligned transform)
+    nvdb, vol, stats = cloud
+    lo, hi = parse_bbox(stats)
+    nano = load_nvdb(str(nvdb), filter_type="nearest", use_grid_transform=True)
+    dense = load_dense(str(vol), filter_type="nearest", use_grid_bbox=True)
+    assert dr.allclose(nano.bbox().min, dense.bbox().min, rtol=1e-5)
+    assert dr.allclose(nano.bbox().max, dense.bbox().max, rtol=1e-5)
+    # world points at random positions inside cells, away from cell faces
+    # (where float rounding of the two maps may pick the neighbour)
+    rng = np.random.default_rng(11)
+    n = 50_000 if dr.is_jit_v(mi.Float) else 2000
+    ijk = np.stack([rng.integers(lo[k], hi[k] + 1, n) for k in range(3)], axis=1)
+    frac = rng.uniform(-0.4, 0.4, size=(n, 3))
+    world = (CLOUD_SCALE * (ijk + frac) + CLOUD_OFFSET).astype(np.float32)
+    a, b = eval_points(nano, world), eval_points(dense, world)
+    assert np.array_equal(a, b), f"{np.sum(a != b)} of {len(a)} lookups differ"
+
+
+@pytest.mark.parametrize("filter_type", ["nearest", "trilinear"])
+def test12_render_dense_equals_nvdb(variants_rgb, cloud, filter_type):
+    nvdb, vol, _ = cloud
+    nano = load_nvdb(str(nvdb), filter_type=filter_type)
+    dense = load_dense(str(vol), filter_type=filter_type)
+    assert nano.max() == dense.max()   # equal majorants: equal random decisions
+    spp = 4 if dr.is_jit_v(mi.Float) else 1
+    a, b = render(nano, spp=spp), render(dense, spp=spp)
+    assert np.all(np.isfinite(a)) and np.mean(a) > 0.01
+    if filter_type == "nearest":
+        # same voxels and values: equal up to float summation order
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-4)
+    else:
+        # Trilinear differs in the outer half voxel (nanovdbvolume blends to
+        # the background, gridvolume clamps to the edge voxel: the cloud's
+        # border voxels are mostly 0, so rarely) and where values reach max()
+        # (nanovdbvolume clamps, gridvolume overshoots by a few ulps), which
+        # changes a few free-flight decisions: compare statistically.
+        close = np.isclose(a, b, rtol=1e-4, atol=1e-4)
+        assert close.mean() > 0.85, f"{(~close).sum()} pixel channels differ"
+        assert abs(a.mean() - b.mean()) < 0.01 * b.mean()
+
+
+def test13_stats_of_a_small_cube(gen, tmp_path):
+    # constant_40: 40^3 voxels at [0, 39]^3 -> 5^3 leaves, 1 lower, 1 upper
+    out = tmp_path / "c.nvdb"
+    p = run(gen("constant_40"), out, "--stats", "--probe", "0,0,0", "--probe", "39,39,39",
+            "--probe", "40,0,0")
+    s = p.stdout
+    assert re.search(r"voxel dimensions\s+40 x 40 x 40", s)
+    assert re.search(r"nodes upper / lower / leaf\s+1 / 1 / 125\n", s)
+    assert re.search(r"active voxels\s+64,000\n", s)
+    assert re.search(r"dense equivalent \(voxels x 4 B\)\s+256,000 B", s)
+    size = out.stat().st_size
+    assert re.search(rf"\.nvdb file size\s+{size:,} B", s)
+    # 125 leaves of 2,144 B (NanoVDB 32.4 float leaf: 96 B header + 512 x 4 B)
+    m = re.search(r"grid size in memory\s+([\d,]+) B", s)
+    grid_bytes = int(m.group(1).replace(",", ""))
+    m = re.search(r"leaf nodes\s+268,000 B.*\(([\d.]+) % of the grid\)", s)
+    assert float(m.group(1)) == pytest.approx(100 * 268000 / grid_bytes, abs=0.05)
+    pr = parse_probes(s)
+    assert pr["density", (0, 0, 0)][:2] == (5.0, True)
+    assert pr["density", (39, 39, 39)][:2] == (5.0, True)
+    assert pr["density", (40, 0, 0)][:2] == (0.0, False)
+
+
+def test14_generator_is_deterministic(gen, tmp_path):
+    for i in range(2):
+        run("generate", "random_24", tmp_path / f"r{i}.vdb", tmp_path / f"r{i}.nvdb", "--quiet")
+    assert (tmp_path / "r0.nvdb").read_bytes() == (tmp_path / "r1.nvdb").read_bytes()
+    p = run(tmp_path / "r0.vdb", tmp_path / "x.nvdb", "--dense", tmp_path / "r.vol")
+    _, _, values = read_vol(tmp_path / "r.vol")
+    values = np.array(values)
+    assert values.size == 24 ** 3 and 4.5 <= values.min() and values.max() <= 5.5
+    assert len(np.unique(values)) > 0.99 * values.size
+    assert abs(values.mean() - 5.0) < 0.01
+    p = run("generate", "--list")
+    assert "constant_934" in p.stdout and "cloud" in p.stdout
+    p = run("generate", "nonsense", tmp_path / "n.vdb", rc=2)
+    assert "random_300" in p.stderr and not (tmp_path / "n.vdb").exists()
+
+
+# ---------------------------------------------------------------------------
+#  Verification
+# ---------------------------------------------------------------------------
+
+def test15_verify_catches_a_conversion_bug(gen, tmp_path):
+    # --corrupt-for-test adds 1 to the first value of every leaf and fixes
+    # the checksum: only the value comparison can notice
+    out = tmp_path / "bad.nvdb"
+    p = run(gen("cloud"), out, "--corrupt-for-test", "--dense", tmp_path / "bad.vol", rc=3)
+    m = re.search(r"mismatch at \((-?\d+), (-?\d+), (-?\d+)\): OpenVDB (\S+) \((in)?active\), "
+                  r"written file (\S+)", p.stderr)
+    assert m, p.stderr
+    assert float(m.group(6)) == pytest.approx(float(m.group(4)) + 1.0, abs=1e-5)
+    assert "not written" in p.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test16_verify_only_on_a_corrupted_file(gen, tmp_path):
+    out = tmp_path / "ok.nvdb"
+    run(gen("cloud"), out, "--verify", "0")
+    p = run("--verify-only", gen("cloud"), out)
+    assert "matches" in p.stdout
+    # Overwrite 4 KiB of leaf values near the end of the (uncompressed) file
+    data = bytearray(out.read_bytes())
+    data[-20000:-16000] = b"\x7f" * 4000
+    out.write_bytes(bytes(data))
+    p = run("--verify-only", gen("cloud"), out, rc=3)
+    assert "does not validate" in p.stderr or "mismatch" in p.stderr
+    assert "does not match" in p.stderr
+    # A file from other options or another source does not match either
+    p = run("--verify-only", gen("sphere_ls"), out, rc=3)
+
+
+@pytest.mark.parametrize("q", ["fp4", "fp8", "fp16", "fpn"])
+def test17_quantized_output_within_bound(gen, tmp_path, q):
+    out = tmp_path / f"{q}.nvdb"
+    p = run(gen("multi"), out, "--quantize", q, "--verify", "30000")
+    assert p.stdout.count("within the quantization bound") == 3
+    errs = [float(x) for x in re.findall(r"largest error (\S+)\)", p.stdout)]
+    assert max(errs) > 0.0   # quantized for real
+    float_size = (tmp_path / "f.nvdb")
+    if not float_size.exists():
+        run(gen("multi"), float_size, "--verify", "0")
+    assert out.stat().st_size < float_size.stat().st_size
+    # The plugin reads float only, for now: a clear message naming the type
+    mi.set_variant("scalar_rgb")
+    mi.file_resolver().prepend(str(BUILD))
+    with pytest.raises(RuntimeError, match="only float grids"):
+        load_nvdb(str(out))
+
+
+def test18_quantize_options(gen, tmp_path):
+    p = run(gen("multi"), tmp_path / "t.nvdb", "--quantize", "fpn", "--tolerance", "0.5",
+            "--grid", "temperature")
+    err = float(re.search(r"largest error (\S+)\)", p.stdout).group(1))
+    assert 0.0 < err <= 0.5
+    p = run(gen("multi"), tmp_path / "h.nvdb", "--quantize", "half", rc=2)
+    assert "fp16" in p.stderr
+    p = run(gen("multi"), tmp_path / "h.nvdb", "--tolerance", "0.5", rc=2)
+    assert "fpn" in p.stderr
+    assert leftovers(tmp_path) == [] and not (tmp_path / "h.nvdb").exists()
+
+
+# ---------------------------------------------------------------------------
+#  Bad input: a clear message, a non-zero exit, nothing left behind
+# ---------------------------------------------------------------------------
+
+def test20_missing_input(tmp_path):
+    p = run(tmp_path / "nope.vdb", tmp_path / "o.nvdb", rc=1)
+    assert "nope.vdb" in p.stderr and "no such file" in p.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test21_corrupt_and_truncated_input(gen, tmp_path):
+    (tmp_path / "garbage.vdb").write_bytes(b"this is not a vdb file at all" * 10)
+    cloud = gen("cloud").read_bytes()
+    (tmp_path / "trunc.vdb").write_bytes(cloud[: len(cloud) // 2])
+    (tmp_path / "empty.vdb").write_bytes(b"")
+    for name in ["garbage.vdb", "trunc.vdb", "empty.vdb"]:
+        p = run(tmp_path / name, tmp_path / "o.nvdb", rc=1)
+        assert name in p.stderr and "cannot read as an OpenVDB file" in p.stderr
+    assert not (tmp_path / "o.nvdb").exists() and leftovers(tmp_path) == []
+
+
+def test22_unknown_grid_lists_the_grids(gen, tmp_path):
+    p = run(gen("multi"), tmp_path / "o.nvdb", "--grid", "smoke", rc=1)
+    assert 'no grid named "smoke"' in p.stderr
+    for name in ["density", "vel", "ls_sphere", "flags", "temperature"]:
+        assert f'"{name}"' in p.stderr
+    p = run(gen("multi"), tmp_path / "o.nvdb", "--grid", "vel", rc=1)
+    assert '"vel" (vec3s' in p.stderr and "only scalar float" in p.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name,kind", [("openvdb_sphere_points.vdb", "ptdataidx32"),
+                                       ("houdini_velocity_vec3s.vdb", "vec3s")])
+def test23_no_convertible_grid(tmp_path, name, kind):
+    p = run(SHARED_DATA / name, tmp_path / "o.nvdb", rc=1)
+    assert "no scalar float grid" in p.stderr and kind in p.stderr and name in p.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test24_unwritable_output(gen, tmp_path):
+    (tmp_path / "file").write_text("x")
+    cases = [tmp_path / "no" / "such" / "dir" / "o.nvdb",   # missing directory
+             tmp_path / "file" / "o.nvdb",                   # a file as directory
+             tmp_path]                                       # a directory as output
+    for out in cases:
+        p = run(gen("cloud"), out, rc=1)
+        assert "vdb2nvdb: error:" in p.stderr and str(out) in p.stderr
+    # --dense to an unwritable place: no .nvdb either
+    p = run(gen("cloud"), tmp_path / "o.nvdb", "--dense", tmp_path / "no" / "o.vol", rc=1)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test25_dense_too_large_is_refused(gen, tmp_path):
+    p = run(gen("cloud"), tmp_path / "o.nvdb", "--dense", tmp_path / "o.vol",
+            "--max-dense-bytes", "1M", rc=1)
+    # cloud: 121 x 129 x 119 voxels = 7,429,884 B + 48 B of header
+    assert "7,429,932 B" in p.stderr and "--max-dense-bytes" in p.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------
+#  Real files (../shared/data, used in place)
+# ---------------------------------------------------------------------------
+
+SHARED_VDB = sorted(SHARED_DATA.glob("*.vdb"))
+# file -> grids written (None: rejected with a clear message)
+EXPECTED = {
+    "houdini_velocity_vec3s.vdb": None,
+    "openvdb_sphere_points.vdb": None,
+    "openvdb_icosahedron_ls.vdb": ["ls_icosahedron"],
+    "openvdb_smoke1_fog.vdb": ["density"],
+    "openvdb_sphere_ls.vdb": ["ls_sphere"],
+    "usd_blender_smoke_empty.vdb": ["density", "shadow"],
+    "usd_density_heat_fog.vdb": ["density", "heat"],
+    "zeno_unnamed_ls.vdb": [""],
+}
+
+
+@pytest.mark.parametrize("path", SHARED_VDB, ids=[p.name for p in SHARED_VDB])
+def test30_shared_data_files(path, tmp_path):
+    assert path.name in EXPECTED, f"new file in shared/data: add {path.name} to EXPECTED"
+    want = EXPECTED[path.name]
+    out = tmp_path / "o.nvdb"
+    p = run(path, out, "--dense", tmp_path / "o.vol", "--stats", rc=None)
+    if want is None:
+        assert p.returncode == 1 and "no scalar float grid" in p.stderr
+        assert list(tmp_path.iterdir()) == []
+        return
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.count("identical") == len(want)   # --verify, exact
+    assert plugin_grid_names(out) == want
+    for i in range(len(want)):
+        vol = load_nvdb(str(out), grid=str(i), filter_type="nearest")
+        vols = sorted(tmp_path.glob("o*.vol"))
+        res, _, values = read_vol(vols[i])
+        assert list(vol.resolution()) == list(res)
+        assert vol.max() >= max(values)
+        dense = load_dense(str(vols[i]), filter_type="nearest")
+        pts = random_points(2000, 30 + i, 0.0, 0.999999)
+        assert np.array_equal(eval_points(vol, pts), eval_points(dense, pts))
+
+
+# ---------------------------------------------------------------------------
+#  Installation
+# ---------------------------------------------------------------------------
+
+def test40_install_puts_vdb2nvdb_beside_python_scripts(tmp_path):
+    build = VDB2NVDB.parent.parent
+    cache = build / "CMakeCache.txt"
+    if not cache.exists():
+        pytest.skip(f"{VDB2NVDB} is not in a CMake build directory")
+    m = re.search(r"^NVDB_TOOLS_INSTALL_DIR:PATH=(.*)$", cache.read_text(), re.M)
+    assert m, "NVDB_TOOLS_INSTALL_DIR missing from the CMake cache"
+    scripts = sysconfig.get_path("scripts")
+    assert Path(m.group(1)) == Path(scripts)
+    env = dict(os.environ, DESTDIR=str(tmp_path))
+    subprocess.run(["cmake", "--install", str(build), "--component", "vdb2nvdb"],
+                   check=True, env=env,
+                   capture_output=True, text=True)
+    installed = tmp_path / Path(scripts).relative_to("/") / "vdb2nvdb"
+    assert installed.exists() and os.access(installed, os.X_OK)
+    assert "usage:" in subprocess.run([str(installed), "--help"], capture_output=True,
+                                      text=True).stdout

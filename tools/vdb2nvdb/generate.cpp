@@ -1,0 +1,260 @@
+// vdb2nvdb generate: synthetic test volumes. See generate.h and README.md.
+//
+// Every value is a function of its voxel coordinate (hash-based noise, no
+// std:: distributions), so the grids are the same on every platform and do
+// not depend on thread scheduling; voxels are written leaf by leaf in
+// parallel, so no dense copy of the volume is ever made.
+
+#include "generate.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+
+#include <openvdb/tools/LevelSetSphere.h>
+#include <openvdb/tools/Prune.h>
+#include <openvdb/tree/LeafManager.h>
+
+namespace vdb2nvdb {
+
+using openvdb::Coord;
+using openvdb::CoordBBox;
+using openvdb::FloatGrid;
+
+namespace {
+
+constexpr uint64_t kSeed = 20240917;
+
+uint64_t mix(uint64_t z) {
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+}
+
+/// Hash of a lattice point in [0, 1).
+double hash01(int64_t x, int64_t y, int64_t z, uint64_t seed) {
+    uint64_t h = mix(seed + 0x9E3779B97F4A7C15ull);
+    h = mix(h ^ (uint64_t(x) * 0xD1B54A32D192ED03ull));
+    h = mix(h ^ (uint64_t(y) * 0xABC98388FB8FAC03ull));
+    h = mix(h ^ (uint64_t(z) * 0x8CB92BA72F3D8DD7ull));
+    return double(h >> 11) * 0x1.0p-53;
+}
+
+/// Value noise in [0, 1): lattice hashes blended with quintic fades.
+double value_noise(double x, double y, double z, uint64_t seed) {
+    const double fx = std::floor(x), fy = std::floor(y), fz = std::floor(z);
+    const int64_t ix = int64_t(fx), iy = int64_t(fy), iz = int64_t(fz);
+    auto fade = [](double t) { return t * t * t * (t * (t * 6.0 - 15.0) + 10.0); };
+    const double u = fade(x - fx), v = fade(y - fy), w = fade(z - fz);
+    double acc = 0.0;
+    for (int c = 0; c < 8; ++c) {
+        const int dx = c & 1, dy = (c >> 1) & 1, dz = (c >> 2) & 1;
+        const double wgt = (dx ? u : 1 - u) * (dy ? v : 1 - v) * (dz ? w : 1 - w);
+        acc += wgt * hash01(ix + dx, iy + dy, iz + dz, seed);
+    }
+    return acc;
+}
+
+/// 5 octaves of value noise, normalised to [0, 1).
+double fbm(double x, double y, double z, uint64_t seed) {
+    double sum = 0.0, amp = 1.0, norm = 0.0, f = 1.0;
+    for (int o = 0; o < 5; ++o) {
+        sum += amp * value_noise(x * f + 17.3 * o, y * f - 5.1 * o, z * f + 9.7 * o, seed + o);
+        norm += amp;
+        amp *= 0.5;
+        f *= 2.03;
+    }
+    return sum / norm;
+}
+
+/// Sets every active voxel of the grid to f(ijk), leaf by leaf in parallel.
+/// f returns a value <= 0 for "empty": such voxels become inactive background.
+template <typename F> void fill_by_function(FloatGrid &grid, F f) {
+    const float bg = grid.background();
+    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(grid.tree());
+    leaves.foreach([&](openvdb::FloatTree::LeafNodeType &leaf, size_t) {
+        for (auto it = leaf.beginValueOn(); it; ++it) {
+            const float v = f(it.getCoord());
+            if (v > 0.f)
+                it.setValue(v);
+            else {
+                leaf.setValueOff(it.pos(), bg);
+            }
+        }
+    });
+}
+
+/// A cube of n^3 active voxels, index box [0, n-1]^3, stored as leaf voxels
+/// (not tiles: the case stands for a fully occupied grid), "density", fog.
+FloatGrid::Ptr cube(int n, bool random) {
+    auto grid = FloatGrid::create(0.f);
+    grid->tree().denseFill(CoordBBox(Coord(0), Coord(n - 1)), 5.f, /*active=*/true);
+    if (random)
+        // uniform in [4.5, 5.5] (5.5 only through float rounding)
+        fill_by_function(*grid, [](const Coord &c) {
+            return float(4.5 + hash01(c.x(), c.y(), c.z(), kSeed));
+        });
+    grid->setName("density");
+    grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+    return grid;
+}
+
+/// A sphere level set: radius 1, centre (0.1, -0.2, 0.3), voxel size 0.02
+/// (50 voxels radius), narrow band 3 voxels each side, "ls_sphere".
+FloatGrid::Ptr sphere_ls(float radius = 1.f, float voxel = 0.02f) {
+    auto grid = openvdb::tools::createLevelSetSphere<FloatGrid>(
+        radius, openvdb::Vec3f(0.1f, -0.2f, 0.3f), voxel, 3.f);
+    grid->setName("ls_sphere");
+    return grid;
+}
+
+/// A noisy cloud in the index box [-h, h)^3: a union of four blobs whose
+/// edges fray and whose interior gets holes from fbm noise; density in
+/// (0, 1], 0 (inactive) outside. Non-uniform voxel size and a translation, so
+/// the grid transform matters. "density", fog volume.
+FloatGrid::Ptr cloud(int h) {
+    auto grid = FloatGrid::create(0.f);
+    grid->tree().denseFill(CoordBBox(Coord(-h), Coord(h - 1)), 1.f, true);
+    struct Blob { double x, y, z, r; };
+    static const Blob blobs[] = { { 0.0, -0.1, 0.0, 0.55 }, { 0.35, 0.2, -0.15, 0.4 },
+                                  { -0.4, 0.1, 0.25, 0.35 }, { 0.1, 0.35, 0.4, 0.3 } };
+    const double inv = 1.0 / double(h);
+    fill_by_function(*grid, [&](const Coord &c) {
+        const double x = c.x() * inv, y = c.y() * inv, z = c.z() * inv;
+        double shape = -1e30; // 1 at a blob's centre, 0 on its surface
+        for (const Blob &b : blobs) {
+            const double d = std::sqrt((x - b.x) * (x - b.x) + (y - b.y) * (y - b.y) +
+                                       (z - b.z) * (z - b.z));
+            shape = std::max(shape, 1.0 - d / b.r);
+        }
+        if (shape < -0.7)
+            return 0.f;
+        const double n = fbm(2.5 * x, 2.5 * y, 2.5 * z, kSeed + 1);
+        return float(std::clamp(2.2 * (shape + 1.4 * (n - 0.5)), 0.0, 1.0));
+    });
+    openvdb::tools::pruneInactive(grid->tree());
+    auto xform = openvdb::math::Transform::createLinearTransform(
+        openvdb::math::Mat4d(0.01, 0., 0., 0., 0., 0.01, 0., 0., 0., 0., 0.0125, 0., 0.2, 1.0, -0.3, 1.));
+    grid->setTransform(xform);
+    grid->setName("density");
+    grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+    return grid;
+}
+
+/// Several grids in one file, in this order: "density" (float fog cloud),
+/// "vel" (vec3s), "ls_sphere" (float level set, background 0.15), "flags"
+/// (int32), "temperature" (float, class unknown, values 300-400).
+openvdb::GridPtrVec multi() {
+    openvdb::GridPtrVec grids;
+    grids.push_back(cloud(24));
+
+    auto vel = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
+    vel->tree().fill(CoordBBox(Coord(0), Coord(9)), openvdb::Vec3s(1.f, 0.f, 0.f), true);
+    vel->setName("vel");
+    grids.push_back(vel);
+
+    // Level set with a non-trivial background: 3 voxels of 0.05
+    grids.push_back(sphere_ls(0.5f, 0.05f));
+
+    auto flags = openvdb::Int32Grid::create(0);
+    flags->tree().fill(CoordBBox(Coord(-4), Coord(4)), 7, true);
+    flags->setName("flags");
+    grids.push_back(flags);
+
+    auto temp = FloatGrid::create(0.f);
+    temp->tree().denseFill(CoordBBox(Coord(40, -8, 0), Coord(71, 23, 15)), 1.f, true);
+    fill_by_function(*temp, [](const Coord &c) {
+        return float(300.0 + 100.0 * hash01(c.x(), c.y(), c.z(), kSeed + 2));
+    });
+    temp->setName("temperature");
+    grids.push_back(temp);
+    return grids;
+}
+
+bool parse_sized(const std::string &name, const std::string &prefix, int &n) {
+    if (name.rfind(prefix, 0) != 0)
+        return false;
+    const std::string digits = name.substr(prefix.size());
+    if (digits.empty() || digits.size() > 4 ||
+        !std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; }))
+        return false;
+    n = std::atoi(digits.c_str());
+    return n >= 1 && n <= 4096;
+}
+
+} // namespace
+
+std::vector<std::pair<std::string, std::string>> generate_cases() {
+    return {
+        { "constant_300", "constant 5.0 in a 300^3 cube of active voxels (index box [0, 299]^3)" },
+        { "constant_934", "the same at 934^3 (3.3 GB as voxels; not in the default tests)" },
+        { "random_300", "uniform random values in [4.5, 5.5] (hash of the voxel, seeded), 300^3" },
+        { "random_934", "the same at 934^3" },
+        { "constant_<N>, random_<N>", "the same for any N in 1..4096" },
+        { "sphere_ls", "sphere level set \"ls_sphere\", radius 1, voxel size 0.02, band 3 voxels" },
+        { "cloud", "noisy cloud \"density\" (fog, 0..1), 160^3 index box, voxel size "
+                   "0.01 x 0.01 x 0.0125, translated" },
+        { "multi", "five grids in one file: density (fog), vel (vec3s), ls_sphere (level set, "
+                   "background 0.15), flags (int32), temperature (float, class unknown)" },
+    };
+}
+
+openvdb::GridPtrVec make_case(const std::string &name) {
+    int n = 0;
+    if (parse_sized(name, "constant_", n))
+        return { cube(n, false) };
+    if (parse_sized(name, "random_", n))
+        return { cube(n, true) };
+    if (name == "sphere_ls")
+        return { sphere_ls() };
+    if (name == "cloud")
+        return { cloud(80) };
+    if (name == "multi")
+        return multi();
+    std::string list;
+    for (const auto &c : generate_cases())
+        list += (list.empty() ? "" : ", ") + c.first;
+    throw Error("unknown test volume \"" + name + "\"; the cases are: " + list, ExitUsage);
+}
+
+int generate(const std::string &name, const std::string &out_vdb, const std::string &out_nvdb,
+             const Options &opts) {
+    TempFile vdb_tmp(out_vdb);
+    if (!out_nvdb.empty()) { TempFile probe(out_nvdb); }
+    auto t0 = std::chrono::steady_clock::now();
+    openvdb::GridPtrVec grids = make_case(name);
+    auto t1 = std::chrono::steady_clock::now();
+    try {
+        openvdb::io::File file(vdb_tmp.tmp_path());
+        // Blosc (fast) when OpenVDB has it, zip otherwise; active-mask compression
+        uint32_t compression = openvdb::io::COMPRESS_ACTIVE_MASK |
+                               (openvdb::io::Archive::hasBloscCompression()
+                                    ? openvdb::io::COMPRESS_BLOSC
+                                    : openvdb::io::COMPRESS_ZIP);
+        file.setCompression(compression);
+        file.write(grids);
+        file.close();
+    } catch (const std::exception &e) {
+        throw Error("cannot write \"" + out_vdb + "\": " + e.what());
+    }
+    vdb_tmp.commit();
+    auto t2 = std::chrono::steady_clock::now();
+    if (!opts.quiet) {
+        uint64_t voxels = 0;
+        for (const auto &g : grids)
+            voxels += g->activeVoxelCount();
+        std::printf("generated %s: %zu grid%s, %llu active voxels, %.0f ms; wrote %s, %.0f ms\n",
+                    name.c_str(), grids.size(), grids.size() == 1 ? "" : "s",
+                    (unsigned long long) voxels,
+                    std::chrono::duration<double, std::milli>(t1 - t0).count(), out_vdb.c_str(),
+                    std::chrono::duration<double, std::milli>(t2 - t1).count());
+        std::fflush(stdout);
+    }
+    if (out_nvdb.empty())
+        return ExitOk;
+    return convert_grids(std::move(grids), "\"" + out_vdb + "\"", out_nvdb, opts);
+}
+
+} // namespace vdb2nvdb
