@@ -41,7 +41,7 @@ def cloud_scene(volume, grid="", filter_type="trilinear", spp=64, res=256):
                 "type": "heterogeneous",
                 "sigma_t": sigma_t,
                 "albedo": {"type": "rgb", "value": [0.9, 0.9, 0.9]},
-                "scale": 8.0,
+                "scale": 40.0,
             },
         },
     }
