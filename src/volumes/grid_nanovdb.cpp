@@ -375,6 +375,14 @@ private:
     //  backend owns. No host copy is kept (and none is made on LLVM).
     // =====================================================================
 
+    /// Dr.Jit variable callback (called without Dr.Jit's lock held): when
+    /// the mapped grid's variable is freed, release the memory after all
+    /// previously launched kernels have finished.
+    static void release_mapped_buffer(uint32_t /* index */, int free, void *ptr) {
+        if (free)
+            jit_enqueue_host_func(JitBackend::LLVM, [](void *p) { std::free(p); }, ptr);
+    }
+
     static Buffer make_empty_buffer() {
         if constexpr (dr::is_jit_v<Float>)
             return UInt32();
@@ -389,19 +397,28 @@ private:
         m_buffer_bytes = bytes;
 
         if constexpr (dr::is_jit_v<Float> && dr::backend_v<Float> == JitBackend::LLVM) {
-            // LLVM kernels read host memory: decode straight into memory that
-            // Dr.Jit then adopts (and frees).
-            void *ptr = jit_malloc(JitBackend::LLVM, alloc_bytes, 1);
+            // LLVM kernels read host memory: decode straight into one
+            // exact-size allocation that Dr.Jit then reads in place. Not from
+            // jit_malloc(), which rounds every size up to a power of two (up
+            // to 2x the grid); Dr.Jit maps it and tells us when its variable
+            // dies, and the memory is released once every kernel launched
+            // before that has finished.
+            void *ptr = nullptr;
+            if (posix_memalign(&ptr, 64, alloc_bytes) != 0 || !ptr)
+                Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
+                      m_filename, bytes, entry.name);
             io::FloatGridInfo info;
             try {
                 std::memset((uint8_t *) ptr + bytes, 0, alloc_bytes - bytes);
                 io::read_grid(m_filename, entry, ptr);
                 info = io::validate_float_grid(m_filename, ptr, bytes);
             } catch (...) {
-                jit_free(ptr);
+                std::free(ptr);
                 throw;
             }
-            m_buffer = UInt32::map_(ptr, words, true);
+            uint32_t index = jit_var_mem_map(JitBackend::LLVM, VarType::UInt32, ptr, words, 0);
+            jit_var_set_callback(index, release_mapped_buffer, ptr);
+            m_buffer = UInt32::steal(index);
             return info;
         } else {
             std::unique_ptr<uint32_t[], void (*)(void *)> host(
