@@ -106,49 +106,102 @@ Reads read_pnanovdb(const TestGrid &g) {
     return r;
 }
 
+/// Which reader the translation is run with
+enum class Reader {
+    Faithful,   ///< RootHandle + plain buffer: PNanoVDB's algorithm
+    Fast        ///< IndexedRootHandle (O(1) root) + CompactOffsets where the grid allows
+};
+
+const char *reader_name(Reader r) { return r == Reader::Faithful ? "faithful" : "fast"; }
+
+/**
+ * Calls fn(buf, root) with the buffer and root handle of the chosen reader on
+ * the backend selected by UInt32 (JIT array, or a host pointer for scalars).
+ * The fast reader falls back to the faithful root search or full offsets
+ * where the grid does not qualify, as the plugin does.
+ */
+template <typename UInt32, typename Fn>
+void with_reader(const TestGrid &g, Reader reader, Fn &&fn) {
+    using Int32 = dr::int32_array_t<UInt32>;
+    using Buffer = std::conditional_t<dr::is_jit_v<UInt32>, UInt32, const uint32_t *>;
+    Buffer buf;
+    if constexpr (dr::is_jit_v<UInt32>)
+        buf = dr::load<UInt32>(g.words.data(), g.words.size());
+    else
+        buf = g.words.data();
+    ndr::RootHandle<UInt32> root = ndr::tree_get_root(
+        buf, ndr::grid_get_tree(ndr::GridHandle<UInt32>{ dr::opaque<UInt32>(0u) }), true);
+    if (reader == Reader::Faithful)
+        return fn(buf, root);
+
+    uint32_t root_word = ndr::tree_get_root(g.words.data(),
+                                            ndr::grid_get_tree(ndr::GridHandle<uint32_t>{ 0u })).address;
+    bool compact = ndr::host::has_compact_offsets(g.words.data(), g.words.size() * 4);
+    ndr::host::RootIndex index;
+    bool indexed = ndr::host::build_root_index(g.words.data(), root_word, 1u << 20, index);
+    if (index.table.empty())
+        index.table.push_back(0u);
+
+    auto with_root = [&](const auto &b) {
+        if (!indexed)
+            return fn(b, root);
+        ndr::Coord<UInt32> bmin, bdims;
+        for (int k = 0; k < 3; ++k) {
+            bmin[k] = dr::opaque<Int32>(index.block_min[k]);
+            bdims[k] = dr::opaque<Int32>(index.block_dims[k]);
+        }
+        if constexpr (dr::is_jit_v<UInt32>) {
+            UInt32 table = dr::load<UInt32>(index.table.data(), index.table.size());
+            return fn(b, ndr::IndexedRootHandle<UInt32, UInt32>{ root.address, table, bmin, bdims });
+        } else {
+            return fn(b, ndr::IndexedRootHandle<uint32_t, const uint32_t *>{
+                             root.address, index.table.data(), bmin, bdims });
+        }
+    };
+    if (compact)
+        with_root(ndr::CompactOffsets<Buffer>{ buf });
+    else
+        with_root(buf);
+}
+
 /// The translation on the backend selected by UInt32
-template <typename UInt32> Reads read_translation(const TestGrid &g) {
+template <typename UInt32> Reads read_translation(const TestGrid &g, Reader reader) {
     size_t n = g.coords.size();
     Reads r;
     r.resize(n);
 
-    if constexpr (!dr::is_jit_v<UInt32>) {
-        const uint32_t *buf = g.words.data();
-        ndr::GridHandle<uint32_t> grid{ 0u };
-        ndr::RootHandle<uint32_t> root = ndr::tree_get_root(buf, ndr::grid_get_tree(grid));
-        for (size_t i = 0; i < n; ++i) {
-            ndr::Coord<uint32_t> ijk(g.coords[i][0], g.coords[i][1], g.coords[i][2]);
-            auto tile = ndr::root_find_tile(buf, root, ijk, true);
-            auto al = ndr::root_get_value_address_and_level(buf, root, ijk, true);
-            r.tile[i]    = uint64_t(tile.address) * 4;
-            r.address[i] = uint64_t(al.address) * 4;
-            r.level[i]   = al.level;
-            r.value[i]   = ndr::read_uint32(buf, al.address, true);
-        }
-    } else {
-        using Mask = dr::mask_t<UInt32>;
-        UInt32 buf = dr::load<UInt32>(g.words.data(), g.words.size());
-        ndr::Coord<UInt32> ijk = jit_coords<UInt32>(g.coords, n);
-        Mask active = dr::full<Mask>(true, n);
+    with_reader<UInt32>(g, reader, [&](const auto &buf, const auto &root) {
+        if constexpr (!dr::is_jit_v<UInt32>) {
+            for (size_t i = 0; i < n; ++i) {
+                ndr::Coord<uint32_t> ijk(g.coords[i][0], g.coords[i][1], g.coords[i][2]);
+                auto tile = ndr::root_find_tile(buf, root, ijk, true);
+                auto al = ndr::root_get_value_address_and_level(buf, root, ijk, true);
+                r.tile[i]    = uint64_t(tile.address) * 4;
+                r.address[i] = uint64_t(al.address) * 4;
+                r.level[i]   = al.level;
+                r.value[i]   = ndr::read_uint32(buf, al.address, true);
+            }
+        } else {
+            using Mask = dr::mask_t<UInt32>;
+            ndr::Coord<UInt32> ijk = jit_coords<UInt32>(g.coords, n);
+            Mask active = dr::full<Mask>(true, n);
+            auto tile = ndr::root_find_tile(buf, root, ijk, active);
+            auto al = ndr::root_get_value_address_and_level(buf, root, ijk, active);
+            UInt32 value = ndr::read_uint32(buf, al.address, active);
+            UInt32 tile_address = tile.address + dr::zeros<UInt32>(n);
+            dr::eval(tile_address, al.address, al.level, value);
 
-        ndr::GridHandle<UInt32> grid{ dr::opaque<UInt32>(0u) };
-        ndr::RootHandle<UInt32> root = ndr::tree_get_root(buf, ndr::grid_get_tree(grid), active);
-        auto tile = ndr::root_find_tile(buf, root, ijk, active);
-        auto al = ndr::root_get_value_address_and_level(buf, root, ijk, active);
-        UInt32 value = ndr::read_uint32(buf, al.address, active);
-        UInt32 tile_address = tile.address + dr::zeros<UInt32>(n);
-        dr::eval(tile_address, al.address, al.level, value);
-
-        std::vector<uint32_t> t(n), a(n);
-        dr::store(t.data(), tile_address);
-        dr::store(a.data(), al.address);
-        dr::store(r.level.data(), al.level);
-        dr::store(r.value.data(), value);
-        for (size_t i = 0; i < n; ++i) {
-            r.tile[i] = uint64_t(t[i]) * 4;
-            r.address[i] = uint64_t(a[i]) * 4;
+            std::vector<uint32_t> t(n), a(n);
+            dr::store(t.data(), tile_address);
+            dr::store(a.data(), al.address);
+            dr::store(r.level.data(), al.level);
+            dr::store(r.value.data(), value);
+            for (size_t i = 0; i < n; ++i) {
+                r.tile[i] = uint64_t(t[i]) * 4;
+                r.address[i] = uint64_t(a[i]) * 4;
+            }
         }
-    }
+    });
     return r;
 }
 
@@ -191,35 +244,33 @@ template <typename UInt32> void init_backend() {
 }
 
 /// Stencil addresses (8 per coordinate) from the translation's accessor
-template <typename UInt32> std::vector<uint64_t> stencil_translation(const TestGrid &g) {
+template <typename UInt32>
+std::vector<uint64_t> stencil_translation(const TestGrid &g, Reader reader) {
     size_t n = g.coords.size();
     std::vector<uint64_t> out(8 * n);
-    if constexpr (!dr::is_jit_v<UInt32>) {
-        const uint32_t *buf = g.words.data();
-        auto root = ndr::tree_get_root(buf, ndr::grid_get_tree(ndr::GridHandle<uint32_t>{ 0u }));
-        for (size_t i = 0; i < n; ++i) {
-            ndr::Coord<uint32_t> ijk(g.coords[i][0], g.coords[i][1], g.coords[i][2]);
-            auto a = ndr::root_get_stencil_addresses(buf, root, ijk, true);
+    with_reader<UInt32>(g, reader, [&](const auto &buf, const auto &root) {
+        if constexpr (!dr::is_jit_v<UInt32>) {
+            for (size_t i = 0; i < n; ++i) {
+                ndr::Coord<uint32_t> ijk(g.coords[i][0], g.coords[i][1], g.coords[i][2]);
+                auto a = ndr::root_get_stencil_addresses(buf, root, ijk, true);
+                for (int c = 0; c < 8; ++c)
+                    out[8 * i + c] = uint64_t(a[c]) * 4;
+            }
+        } else {
+            using Mask = dr::mask_t<UInt32>;
+            ndr::Coord<UInt32> ijk = jit_coords<UInt32>(g.coords, n);
+            Mask active = dr::full<Mask>(true, n);
+            auto a = ndr::root_get_stencil_addresses(buf, root, ijk, active);
             for (int c = 0; c < 8; ++c)
-                out[8 * i + c] = uint64_t(a[c]) * 4;
+                dr::eval(a[c]);
+            std::vector<uint32_t> tmp(n);
+            for (int c = 0; c < 8; ++c) {
+                dr::store(tmp.data(), a[c]);
+                for (size_t i = 0; i < n; ++i)
+                    out[8 * i + c] = uint64_t(tmp[i]) * 4;
+            }
         }
-    } else {
-        using Mask = dr::mask_t<UInt32>;
-        UInt32 buf = dr::load<UInt32>(g.words.data(), g.words.size());
-        ndr::Coord<UInt32> ijk = jit_coords<UInt32>(g.coords, n);
-        Mask active = dr::full<Mask>(true, n);
-        ndr::GridHandle<UInt32> grid{ dr::opaque<UInt32>(0u) };
-        auto root = ndr::tree_get_root(buf, ndr::grid_get_tree(grid), active);
-        auto a = ndr::root_get_stencil_addresses(buf, root, ijk, active);
-        for (int c = 0; c < 8; ++c)
-            dr::eval(a[c]);
-        std::vector<uint32_t> tmp(n);
-        for (int c = 0; c < 8; ++c) {
-            dr::store(tmp.data(), a[c]);
-            for (size_t i = 0; i < n; ++i)
-                out[8 * i + c] = uint64_t(tmp[i]) * 4;
-        }
-    }
+    });
     return out;
 }
 
@@ -249,7 +300,9 @@ TEST_CASE_TEMPLATE("trilinear stencil accessor: 8 addresses equal 8 PNanoVDB tra
         SUBCASE(g.name.c_str()) {
             // Query points near INT32_MAX would wrap when +1 is added: PNanoVDB
             // and the accessor wrap alike (int32 arithmetic), so keep them.
-            std::vector<uint64_t> ref = stencil_pnanovdb(g), got = stencil_translation<UInt32>(g);
+          std::vector<uint64_t> ref = stencil_pnanovdb(g);
+          for (Reader reader : { Reader::Faithful, Reader::Fast }) {
+            std::vector<uint64_t> got = stencil_translation<UInt32>(g, reader);
             size_t mismatches = 0;
             for (size_t i = 0; i < ref.size(); ++i) {
                 if (ref[i] != got[i] && ++mismatches <= 5) {
@@ -259,9 +312,11 @@ TEST_CASE_TEMPLATE("trilinear stencil accessor: 8 addresses equal 8 PNanoVDB tra
                     CHECK(ref[i] == got[i]);
                 }
             }
-            MESSAGE(std::string(dr::is_jit_v<UInt32> ? "LLVM" : "scalar"), ", grid ", g.name,
-                    ": ", ref.size(), " stencil addresses, ", mismatches, " mismatches");
+            MESSAGE(std::string(dr::is_jit_v<UInt32> ? "LLVM" : "scalar"), " ",
+                    reader_name(reader), ", grid ", g.name, ": ", ref.size(),
+                    " stencil addresses, ", mismatches, " mismatches");
             CHECK(mismatches == 0);
+          }
         }
     }
 }
@@ -314,8 +369,11 @@ TEST_CASE_TEMPLATE("root tile, value address, level and value match PNanoVDB", U
     init_backend<UInt32>();
     for (const TestGrid &g : test_grids()) {
         SUBCASE(g.name.c_str()) {
-            compare(dr::is_jit_v<UInt32> ? "LLVM" : "scalar", g, read_pnanovdb(g),
-                    read_translation<UInt32>(g));
+            Reads ref = read_pnanovdb(g);
+            for (Reader reader : { Reader::Faithful, Reader::Fast })
+                compare((std::string(dr::is_jit_v<UInt32> ? "LLVM " : "scalar ") +
+                         reader_name(reader)).c_str(),
+                        g, ref, read_translation<UInt32>(g, reader));
         }
     }
 }
@@ -326,7 +384,10 @@ TEST_CASE("CUDA: root tile, value address, level and value match PNanoVDB" *
     REQUIRE(jit_has_backend(JitBackend::CUDA));
     for (const TestGrid &g : test_grids()) {
         SUBCASE(g.name.c_str()) {
-            compare("CUDA", g, read_pnanovdb(g), read_translation<dr::CUDAArray<uint32_t>>(g));
+            Reads ref = read_pnanovdb(g);
+            for (Reader reader : { Reader::Faithful, Reader::Fast })
+                compare((std::string("CUDA ") + reader_name(reader)).c_str(), g, ref,
+                        read_translation<dr::CUDAArray<uint32_t>>(g, reader));
         }
     }
 }
@@ -361,4 +422,25 @@ TEST_CASE("inactive lanes never read: a corrupt child offset behind a false mask
     for (uint32_t v : out)
         nonzero += v != 0;
     CHECK(nonzero == 0);
+}
+
+TEST_CASE("the fast readers apply to the test grids (so the fast tests test them)") {
+    for (const TestGrid &g : test_grids()) {
+        INFO("grid ", g.name);
+        uint32_t root_word = ndr::tree_get_root(g.words.data(),
+                                                ndr::grid_get_tree(ndr::GridHandle<uint32_t>{ 0u })).address;
+        ndr::host::RootIndex index;
+        bool indexed = ndr::host::build_root_index(g.words.data(), root_word, 1u << 20, index);
+        // NanoVDB writes canonical layouts: every test grid has compact offsets
+        CHECK(ndr::host::has_compact_offsets(g.words.data(), g.words.size() * 4));
+        // Only far_coords spans too many 4096^3 blocks for an index
+        CHECK(indexed == (g.name != "far_coords"));
+        MESSAGE("grid ", g.name, ": root index ", std::string(indexed ? "yes" : "no (linear search)"),
+                ", ", index.table.size(), " entries");
+    }
+    // A layout that is not canonical is detected: swap the lower and leaf arrays' order
+    TestGrid g = test_grids().front();
+    uint32_t tree = ndr::words(ndr::GRID_SIZE);
+    std::swap(g.words[tree + 0], g.words[tree + 2]);   // leaf offset <-> lower offset (low words)
+    CHECK_FALSE(ndr::host::has_compact_offsets(g.words.data(), g.words.size() * 4));
 }

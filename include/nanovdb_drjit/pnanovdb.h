@@ -51,8 +51,11 @@
 
 #pragma once
 
+#include <algorithm>
+#include <climits>
 #include <cstdint>
 #include <tuple>
+#include <vector>
 #include <type_traits>
 
 #include <drjit/array.h>
@@ -184,6 +187,33 @@ read_int64_as_word_delta(const Buffer &buf, const UInt32 &address,
     return { (lo >> 2) | (hi << 30), (lo | hi) != 0u };
 }
 
+/**
+ * Beyond PNanoVDB: a buffer whose child offsets are all known to be
+ * non-negative and below 4 GiB, so that only their low word needs reading
+ * (one gather instead of two per level). The plugin uses it for grids under
+ * 4 GiB whose node arrays are stored in NanoVDB's canonical order (root, upper
+ * nodes, lower nodes, leaves), where every child lies after its parent.
+ */
+template <typename Buffer> struct CompactOffsets {
+    Buffer buf;
+};
+
+/// PNanoVDB: pnanovdb_read_uint32, on a CompactOffsets buffer
+template <typename UInt32, typename Buffer>
+DRJIT_INLINE UInt32 read_uint32(const CompactOffsets<Buffer> &buf, const UInt32 &address,
+                                const dr::mask_t<UInt32> &active) {
+    return read_uint32(buf.buf, address, active);
+}
+
+/// read_int64_as_word_delta, on a CompactOffsets buffer: the low word only
+template <typename UInt32, typename Buffer>
+DRJIT_INLINE std::pair<UInt32, dr::mask_t<UInt32>>
+read_int64_as_word_delta(const CompactOffsets<Buffer> &buf, const UInt32 &address,
+                         const dr::mask_t<UInt32> &active) {
+    UInt32 lo = read_uint32(buf.buf, address, active);
+    return { lo >> 2, lo != 0u };
+}
+
 // ---------------------------------------------------------------------------
 //  Grid and tree
 // ---------------------------------------------------------------------------
@@ -244,8 +274,9 @@ DRJIT_INLINE RootTileHandle<UInt32> root_get_tile(const RootHandle<UInt32> &root
 }
 
 /// PNanoVDB: pnanovdb_root_get_background_address
-template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32>
-DRJIT_INLINE UInt32 root_get_background_address(const RootHandle<UInt32> &root) {
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename Root,
+          typename UInt32 = decltype(Root::address)>
+DRJIT_INLINE UInt32 root_get_background_address(const Root &root) {
     constexpr const GridTypeConstants &c = grid_type_constants<GridType>::value;
     return UInt32(root.address + words(c.root_off_background));
 }
@@ -304,10 +335,44 @@ RootTileHandle<UInt32> root_find_tile(const Buffer &buf,
 }
 
 /// PNanoVDB: pnanovdb_root_get_child (child offset is relative to the root)
-template <typename UInt32>
-DRJIT_INLINE UpperHandle<UInt32> root_get_child(const RootHandle<UInt32> &root,
+template <typename Root, typename UInt32 = decltype(Root::address)>
+DRJIT_INLINE UpperHandle<UInt32> root_get_child(const Root &root,
                                                 const UInt32 &child_delta) {
     return { UInt32(root.address + child_delta) };
+}
+
+/**
+ * Beyond PNanoVDB: a root handle with an O(1) tile index.
+ *
+ * `table` holds, for every 4096^3 block of the box of blocks spanned by the
+ * root's tiles, the word address of that block's root tile (0: no tile, i.e.
+ * background). A block is ijk >> 12 (arithmetic shift), the same grouping as
+ * coord_to_key. It replaces PNanoVDB's linear search of the root table (a
+ * loop with two gathers per tile) by one gather. The plugin builds it on the
+ * host when it is small (see build_root_index); `Table` is a JIT array or, on
+ * the scalar path, a `const uint32_t *`.
+ */
+template <typename UInt32, typename Table> struct IndexedRootHandle {
+    UInt32 address;                     ///< the root node, as in RootHandle
+    Table table;                        ///< tile word addresses, x-major
+    Coord<UInt32> block_min;            ///< smallest block coordinate
+    Coord<UInt32> block_dims;           ///< extent of the box of blocks
+};
+
+/// PNanoVDB: pnanovdb_root_find_tile, by table lookup
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32, typename Table,
+          typename Buffer>
+DRJIT_INLINE RootTileHandle<UInt32>
+root_find_tile(const Buffer & /* buf */, const IndexedRootHandle<UInt32, Table> &root,
+               const Coord<UInt32> &ijk, const dr::mask_t<UInt32> &active) {
+    using Mask = dr::mask_t<UInt32>;
+    Coord<UInt32> rel = (ijk >> 12) - root.block_min;
+    Mask inside = active;
+    for (int k = 0; k < 3; ++k)
+        inside &= (rel[k] >= 0) & (rel[k] < root.block_dims[k]);
+    UInt32 index = dr::reinterpret_array<UInt32>(
+        (rel.x() * root.block_dims.y() + rel.y()) * root.block_dims.z() + rel.z());
+    return { read_uint32(root.table, index, inside) };
 }
 
 // ---------------------------------------------------------------------------
@@ -465,10 +530,11 @@ upper_get_value_address_and_level(const Buffer &buf,
 }
 
 /// PNanoVDB: pnanovdb_root_get_value_address_and_level
-template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32, typename Buffer>
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
+          typename UInt32 = decltype(Root::address)>
 AddressAndLevel<UInt32>
 root_get_value_address_and_level(const Buffer &buf,
-                                 const RootHandle<UInt32> &root,
+                                 const Root &root,
                                  const Coord<UInt32> &ijk,
                                  const dr::mask_t<UInt32> &active = true) {
     using Mask = dr::mask_t<UInt32>;
@@ -492,9 +558,10 @@ root_get_value_address_and_level(const Buffer &buf,
 }
 
 /// PNanoVDB: pnanovdb_root_get_value_address
-template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32, typename Buffer>
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
+          typename UInt32 = decltype(Root::address)>
 DRJIT_INLINE UInt32 root_get_value_address(const Buffer &buf,
-                                           const RootHandle<UInt32> &root,
+                                           const Root &root,
                                            const Coord<UInt32> &ijk,
                                            const dr::mask_t<UInt32> &active = true) {
     return root_get_value_address_and_level<GridType>(buf, root, ijk, active).address;
@@ -505,9 +572,10 @@ DRJIT_INLINE UInt32 root_get_value_address(const Buffer &buf,
  * pnanovdb_read_float). Values outside the tree are the background, as in
  * every VDB. Inactive lanes return 0.
  */
-template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32, typename Buffer>
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
+          typename UInt32 = decltype(Root::address)>
 DRJIT_INLINE dr::float32_array_t<UInt32>
-root_get_value(const Buffer &buf, const RootHandle<UInt32> &root,
+root_get_value(const Buffer &buf, const Root &root,
                const Coord<UInt32> &ijk, const dr::mask_t<UInt32> &active = true) {
     return read_float(buf, root_get_value_address<GridType>(buf, root, ijk, active),
                       active);
@@ -540,8 +608,9 @@ template <typename UInt32> struct LowerOrValue {
 
 /// Traversal root -> upper -> lower, stopping at the lower node
 /// (the first two steps of root_get_value_address_and_level)
-template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32, typename Buffer>
-LowerOrValue<UInt32> root_get_lower(const Buffer &buf, const RootHandle<UInt32> &root,
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
+          typename UInt32 = decltype(Root::address)>
+LowerOrValue<UInt32> root_get_lower(const Buffer &buf, const Root &root,
                                     const Coord<UInt32> &ijk,
                                     const dr::mask_t<UInt32> &active) {
     using Mask = dr::mask_t<UInt32>;
@@ -569,9 +638,9 @@ LowerOrValue<UInt32> root_get_lower(const Buffer &buf, const RootHandle<UInt32> 
  * order corner = i + 2 j + 4 k (x fastest, as Dr.Jit's texture). Each address
  * equals root_get_value_address(buf, root, ijk0 + (i, j, k)).
  */
-template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32, typename Buffer>
-dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf,
-                                                const RootHandle<UInt32> &root,
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
+          typename UInt32 = decltype(Root::address)>
+dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &root,
                                                 const Coord<UInt32> &ijk0,
                                                 const dr::mask_t<UInt32> &active) {
     using Mask = dr::mask_t<UInt32>;
@@ -591,6 +660,7 @@ dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf,
     }
 
     dr::Array<UInt32, 8> result;
+    Mask far[8], any_far = false;
     for (uint32_t corner = 0; corner < 8; ++corner) {
         uint32_t bit[3] = { corner & 1u, (corner >> 1) & 1u, (corner >> 2) & 1u };
         Coord<UInt32> ijk(ijk0.x() + Int32((int32_t) bit[0]),
@@ -613,25 +683,149 @@ dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf,
         address = dr::select(via_lower, al.address, address);
         // Corner 0 stopped above the lower level: that tile (or the
         // background) covers the whole 128^3 block, this corner included
-        address = dr::select(in_lower & !base.has_lower, base.address, address);
+        result[corner] = dr::select(in_lower & !base.has_lower, base.address, address);
 
-        // Another 128^3 block: a full traversal, in the packets that need it
-        Mask far = active & !in_lower;
-        if constexpr (dr::is_jit_v<UInt32>) {
-            address = dr::if_stmt(
-                std::make_tuple(ijk, address), far,
-                [buf, root, far](const Coord<UInt32> &ijk, const UInt32 &) {
-                    return root_get_value_address<GridType>(buf, root, ijk, far);
-                },
-                [](const Coord<UInt32> &, const UInt32 &address) { return address; },
-                "nanovdb_stencil_far_corner");
-        } else {
-            if (far)
-                address = root_get_value_address<GridType>(buf, root, ijk, far);
+        far[corner] = active & !in_lower;
+        any_far |= far[corner];
+    }
+
+    // Corners in another 128^3 block: full traversals, in one conditional
+    // that the JIT backends skip for every packet of lanes without any
+    auto traverse_far = [buf, root, ijk0](const dr::Array<UInt32, 8> &addresses,
+                                          const dr::Array<Mask, 8> &far_) {
+        dr::Array<UInt32, 8> out = addresses;
+        for (uint32_t corner = 1; corner < 8; ++corner) {
+            Coord<UInt32> ijk(ijk0.x() + Int32((int32_t) (corner & 1u)),
+                              ijk0.y() + Int32((int32_t) ((corner >> 1) & 1u)),
+                              ijk0.z() + Int32((int32_t) ((corner >> 2) & 1u)));
+            out[corner] = dr::select(
+                far_[corner],
+                root_get_value_address<GridType>(buf, root, ijk, far_[corner]),
+                out[corner]);
         }
-        result[corner] = address;
+        return out;
+    };
+    dr::Array<Mask, 8> far_mask;
+    for (uint32_t corner = 0; corner < 8; ++corner)
+        far_mask[corner] = far[corner];
+    if constexpr (dr::is_jit_v<UInt32>) {
+        result = dr::if_stmt(
+            std::make_tuple(result, far_mask), any_far, traverse_far,
+            [](const dr::Array<UInt32, 8> &addresses, const dr::Array<Mask, 8> &) {
+                return addresses;
+            },
+            "nanovdb_stencil_far_corners");
+    } else {
+        if (any_far)
+            result = traverse_far(result, far_mask);
     }
     return result;
 }
+
+// ---------------------------------------------------------------------------
+//  Host-side helpers for the accelerated readers (plain C++, run once per
+//  file on a buffer that io.h has validated)
+// ---------------------------------------------------------------------------
+
+namespace host {
+
+inline uint64_t read_u64(const uint32_t *buf, uint64_t word) {
+    return uint64_t(buf[word]) | (uint64_t(buf[word + 1]) << 32);
+}
+
+/**
+ * True if every child offset of the (validated) float grid in `words` is
+ * non-negative and below 4 GiB, so that CompactOffsets may read only their
+ * low words: the buffer is smaller than 4 GiB and the node arrays are laid
+ * out in NanoVDB's canonical order (root, then upper nodes, lower nodes and
+ * leaves, each array after the previous one), so every child lies after its
+ * parent. NanoVDB's writers always produce this layout.
+ */
+inline bool has_compact_offsets(const uint32_t *buf, uint64_t bytes) {
+    constexpr const GridTypeConstants &c = GRID_TYPE_CONSTANTS_FLOAT;
+    if (bytes >= (uint64_t(1) << 32))
+        return false;
+    const uint64_t tree = words(GRID_SIZE);
+    uint64_t leaf_off  = read_u64(buf, tree + 0) / 4,
+             lower_off = read_u64(buf, tree + 2) / 4,
+             upper_off = read_u64(buf, tree + 4) / 4,
+             root_off  = read_u64(buf, tree + 6) / 4;
+    uint64_t n_leaf = buf[tree + 8], n_lower = buf[tree + 9], n_upper = buf[tree + 10];
+    // End of the previous array (in words, relative to the tree)
+    uint64_t end = root_off + 1;
+    if (n_upper) {
+        if (upper_off < end) return false;
+        end = upper_off + n_upper * words(c.upper_size);
+    }
+    if (n_lower) {
+        if (lower_off < end) return false;
+        end = lower_off + n_lower * words(c.lower_size);
+    }
+    if (n_leaf && leaf_off < end)
+        return false;
+    return true;
+}
+
+/// The O(1) root tile index of IndexedRootHandle, built on the host
+struct RootIndex {
+    std::vector<uint32_t> table;   ///< tile word addresses (0: none), x-major
+    int32_t block_min[3] = { 0, 0, 0 };
+    int32_t block_dims[3] = { 0, 0, 0 };
+};
+
+/**
+ * Builds the root tile index of the (validated) float grid whose root node
+ * starts at word `root_word`, or returns false if the box of 4096^3 blocks
+ * spanned by its tiles would need more than `max_entries` entries (then the
+ * linear search of PNanoVDB is used).
+ */
+inline bool build_root_index(const uint32_t *buf, uint32_t root_word,
+                             uint64_t max_entries, RootIndex &index) {
+    constexpr const GridTypeConstants &c = GRID_TYPE_CONSTANTS_FLOAT;
+    uint32_t tile_count = buf[root_word + words(ROOT_OFF_TABLE_SIZE)];
+    auto block = [](uint64_t key, int shift) {
+        // 20-bit (ijk >> 12) of coord_to_key, sign-extended
+        uint32_t u = uint32_t((key >> shift) & 0x1FFFFFu);
+        return int32_t(u << 12) >> 12;
+    };
+    int64_t lo[3] = { INT64_MAX, INT64_MAX, INT64_MAX },
+            hi[3] = { INT64_MIN, INT64_MIN, INT64_MIN };
+    for (uint32_t t = 0; t < tile_count; ++t) {
+        uint64_t tile = uint64_t(root_word) + words(c.root_size) + uint64_t(t) * words(c.root_tile_size);
+        uint64_t key = read_u64(buf, tile);
+        int32_t b[3] = { block(key, 42), block(key, 21), block(key, 0) };
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min<int64_t>(lo[k], b[k]);
+            hi[k] = std::max<int64_t>(hi[k], b[k]);
+        }
+    }
+    uint64_t entries = 1;
+    if (tile_count == 0) {
+        for (int k = 0; k < 3; ++k)
+            lo[k] = hi[k] = 0;
+    }
+    for (int k = 0; k < 3; ++k)
+        entries *= uint64_t(hi[k] - lo[k] + 1);
+    if (entries > max_entries)
+        return false;
+
+    index.table.assign(entries, 0u);
+    for (int k = 0; k < 3; ++k) {
+        index.block_min[k] = int32_t(lo[k]);
+        index.block_dims[k] = tile_count ? int32_t(hi[k] - lo[k] + 1) : 0;
+    }
+    for (uint32_t t = 0; t < tile_count; ++t) {
+        uint64_t tile = uint64_t(root_word) + words(c.root_size) + uint64_t(t) * words(c.root_tile_size);
+        uint64_t key = read_u64(buf, tile);
+        int64_t b[3] = { block(key, 42), block(key, 21), block(key, 0) };
+        uint64_t i = uint64_t(((b[0] - lo[0]) * index.block_dims[1] + (b[1] - lo[1])) *
+                                  index.block_dims[2] + (b[2] - lo[2]));
+        if (index.table[i] == 0) // like the linear search: the first match wins
+            index.table[i] = uint32_t(tile);
+    }
+    return true;
+}
+
+} // namespace host
 
 } // namespace nanovdb_drjit

@@ -239,7 +239,10 @@ public:
             << "  dimensions = " << m_resolution << "," << std::endl
             << "  background = " << m_background << "," << std::endl
             << "  max = " << m_max << "," << std::endl
-            << "  bytes = " << m_buffer_bytes << std::endl
+            << "  bytes = " << m_buffer_bytes << "," << std::endl
+            << "  reader = " << (m_root_indexed ? "root index" : "root search")
+            << (m_compact_offsets ? ", 32-bit child offsets" : ", 64-bit child offsets")
+            << std::endl
             << "]";
         return oss.str();
     }
@@ -288,8 +291,9 @@ private:
         // The 8 corners in one traversal (see root_get_stencil_addresses),
         // summed in the order and with the weights of Dr.Jit's texture
         ndr::Coord<UInt32> c(ijk0.x(), ijk0.y(), ijk0.z());
-        dr::Array<UInt32, 8> address =
-            ndr::root_get_stencil_addresses(buffer(), ndr::RootHandle<UInt32>{ m_root }, c, active);
+        dr::Array<UInt32, 8> address = with_reader([&](const auto &buf, const auto &root) {
+            return ndr::root_get_stencil_addresses(buf, root, c, active);
+        });
         Float result = 0.f;
         for (uint32_t corner = 0; corner < 8; ++corner) {
             int32_t bit[3] = { (int32_t) (corner & 1), (int32_t) ((corner >> 1) & 1),
@@ -307,6 +311,54 @@ private:
         return dr::minimum(result, m_max_opaque);
     }
 
+    /**
+     * Decides, once per file, which of the translation's readers the kernels
+     * use (traced as one code path per file, never as a runtime branch):
+     * CompactOffsets where every child offset fits the low word, and an
+     * O(1) root tile index where it is small (at most 0.4 % of the grid).
+     */
+    void prepare_readers(const uint32_t *words, size_t bytes,
+                         const nanovdb_drjit::io::FloatGridInfo &info) {
+        namespace ndr = nanovdb_drjit;
+        m_compact_offsets = ndr::host::has_compact_offsets(words, bytes);
+        ndr::host::RootIndex index;
+        uint64_t max_entries = std::max<uint64_t>(64, bytes / 1024);
+        m_root_indexed = ndr::host::build_root_index(words, info.root_word, max_entries, index);
+        if (!m_root_indexed)
+            return;
+        if (index.table.empty())
+            index.table.push_back(0u);
+        m_root_table_host = std::move(index.table);
+        if constexpr (dr::is_jit_v<Float>)
+            m_root_table = dr::load<UInt32>(m_root_table_host.data(), m_root_table_host.size());
+        for (int k = 0; k < 3; ++k) {
+            m_block_min[k] = dr::opaque<Int32>(index.block_min[k]);
+            m_block_dims[k] = dr::opaque<Int32>(index.block_dims[k]);
+        }
+        if constexpr (dr::is_jit_v<Float>)
+            m_root_table_host = {};  // the JIT array holds it now
+    }
+
+    /// Calls fn(buffer, root) with the reader chosen by prepare_readers()
+    template <typename Fn> decltype(auto) with_reader(Fn &&fn) const {
+        namespace ndr = nanovdb_drjit;
+        auto with_root = [&](const auto &buf) -> decltype(auto) {
+            if (m_root_indexed) {
+                if constexpr (dr::is_jit_v<Float>)
+                    return fn(buf, ndr::IndexedRootHandle<UInt32, UInt32>{
+                                       m_root, m_root_table, m_block_min, m_block_dims });
+                else
+                    return fn(buf, ndr::IndexedRootHandle<UInt32, const uint32_t *>{
+                                       m_root, m_root_table_host.data(), m_block_min,
+                                       m_block_dims });
+            }
+            return fn(buf, ndr::RootHandle<UInt32>{ m_root });
+        };
+        if (m_compact_offsets)
+            return with_root(ndr::CompactOffsets<std::decay_t<decltype(buffer())>>{ buffer() });
+        return with_root(buffer());
+    }
+
     /// The buffer as the translation reads it: a JIT array or a host pointer
     decltype(auto) buffer() const {
         if constexpr (dr::is_jit_v<Float>)
@@ -319,7 +371,9 @@ private:
     Float value_at(const Vector3i &ijk, Mask active) const {
         namespace ndr = nanovdb_drjit;
         ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
-        return ndr::root_get_value(buffer(), ndr::RootHandle<UInt32>{ m_root }, c, active);
+        return with_reader([&](const auto &buf, const auto &root) {
+            return ndr::root_get_value(buf, root, c, active);
+        });
     }
 
     /// With use_grid_transform: local space = the grid's world space.
@@ -412,6 +466,7 @@ private:
                 std::memset((uint8_t *) ptr + bytes, 0, alloc_bytes - bytes);
                 io::read_grid(m_filename, entry, ptr);
                 info = io::validate_float_grid(m_filename, ptr, bytes);
+                prepare_readers((const uint32_t *) ptr, bytes, info);
             } catch (...) {
                 std::free(ptr);
                 throw;
@@ -429,6 +484,7 @@ private:
             std::memset((uint8_t *) host.get() + bytes, 0, alloc_bytes - bytes);
             io::read_grid(m_filename, entry, host.get());
             io::FloatGridInfo info = io::validate_float_grid(m_filename, host.get(), bytes);
+            prepare_readers(host.get(), bytes, info);
             if constexpr (dr::is_jit_v<Float>)
                 m_buffer = dr::load<UInt32>(host.get(), words); // GPU copy; host freed here
             else
@@ -444,6 +500,11 @@ private:
     Vector3f m_dims;           // active box extent, as float (opaque)
     Matrix4f m_index_from_world; // use_grid_transform: world -> index - min
     Float m_max_opaque;        // max(), the clamp of trilinear results
+    UInt32 m_root_table;       // O(1) root tile index (JIT variants)
+    std::vector<uint32_t> m_root_table_host; // ... (scalar variants)
+    Vector3i m_block_min, m_block_dims;      // ... its box of 4096^3 blocks
+    bool m_root_indexed = false;
+    bool m_compact_offsets = false;
 
     ScalarVector3i m_min_scalar;
     ScalarVector3i m_resolution;
@@ -454,7 +515,8 @@ private:
     bool m_use_grid_transform = false;
     std::string m_filename, m_grid_name;
 
-    MI_TRAVERSE_CB(Base, m_buffer, m_root, m_min, m_dims, m_index_from_world, m_max_opaque)
+    MI_TRAVERSE_CB(Base, m_buffer, m_root, m_min, m_dims, m_index_from_world, m_max_opaque,
+                   m_root_table, m_block_min, m_block_dims)
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)
