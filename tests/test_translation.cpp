@@ -313,7 +313,7 @@ TEST_CASE_TEMPLATE("trilinear stencil accessor: 8 addresses equal 8 PNanoVDB tra
                 }
             }
             MESSAGE(std::string(dr::is_jit_v<UInt32> ? "LLVM" : "scalar"), " ",
-                    reader_name(reader), ", grid ", g.name, ": ", ref.size(),
+                    std::string(reader_name(reader)), ", grid ", g.name, ": ", ref.size(),
                     " stencil addresses, ", mismatches, " mismatches");
             CHECK(mismatches == 0);
           }
