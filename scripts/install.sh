@@ -11,8 +11,9 @@ APT_PACKAGES=(
   libblosc-dev zlib1g-dev   # .nvdb codecs
   doctest-dev
   libllvm19           # Dr.Jit's LLVM backend fails with Debian's default libLLVM 14/15
+  clang-14 libclang-rt-14-dev  # libFuzzer + ASan/UBSan runtimes for tests/fuzz
 )
-PIP_PACKAGES=(mitsuba==3.9.1 drjit==1.5.0 nanobind==3.1.0 numpy==2.4.6 pytest==9.2.0)
+PIP_PACKAGES=(mitsuba==3.9.1 drjit==1.5.0 nanobind==3.1.0 numpy==2.4.6 pytest==9.2.0 matplotlib==3.11.2)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -40,7 +41,7 @@ if ! "$PYTHON" - <<'PY' 2>/dev/null
 import importlib.metadata as md, sys
 want = {"mitsuba": "3.9.1", "drjit": "1.5.0"}
 sys.exit(0 if all(md.version(k) == v for k, v in want.items()) and
-         all(md.version(k) for k in ("nanobind", "numpy", "pytest")) else 1)
+         all(md.version(k) for k in ("nanobind", "numpy", "pytest", "matplotlib")) else 1)
 PY
 then
   echo "== pip install ${PIP_PACKAGES[*]}"

@@ -143,6 +143,50 @@ FloatGrid::Ptr cloud(int h) {
     return grid;
 }
 
+/// A field of small frayed cloud puffs scattered through the index box
+/// [0, n)^3: 24 blobs of radius 0.04-0.09 n (deterministic positions), fbm
+/// noise on their edges and inside; density in (0, 1], 0 (inactive) between
+/// them. About 1-2 % of the box is occupied -- the sparsity of production
+/// clouds, whose NanoVDB files are 10-15x smaller than their dense boxes.
+/// Voxel size 1/n, "density", fog volume.
+FloatGrid::Ptr cloudfield(int n) {
+    auto grid = FloatGrid::create(0.f);
+    struct Blob { double x, y, z, r; };
+    std::vector<Blob> blobs;
+    for (int b = 0; b < 24; ++b) {
+        auto u = [&](int k) { return hash01(b, k, 7, kSeed + 3); };
+        blobs.push_back({ 0.12 + 0.76 * u(0), 0.12 + 0.76 * u(1), 0.12 + 0.76 * u(2),
+                          0.04 + 0.05 * u(3) });
+    }
+    // Activate each blob's bounding box only (never the whole box)
+    for (const Blob &b : blobs) {
+        Coord lo(int(std::floor((b.x - b.r) * n)), int(std::floor((b.y - b.r) * n)),
+                 int(std::floor((b.z - b.r) * n))),
+              hi(int(std::ceil((b.x + b.r) * n)), int(std::ceil((b.y + b.r) * n)),
+                 int(std::ceil((b.z + b.r) * n)));
+        grid->tree().denseFill(CoordBBox(lo, hi), 1.f, true);
+    }
+    const double inv = 1.0 / double(n);
+    fill_by_function(*grid, [&](const Coord &c) {
+        const double x = (c.x() + 0.5) * inv, y = (c.y() + 0.5) * inv, z = (c.z() + 0.5) * inv;
+        double shape = -1e30;
+        for (const Blob &b : blobs) {
+            const double d = std::sqrt((x - b.x) * (x - b.x) + (y - b.y) * (y - b.y) +
+                                       (z - b.z) * (z - b.z));
+            shape = std::max(shape, 1.0 - d / b.r);
+        }
+        if (shape < -0.2)
+            return 0.f;
+        const double noise = fbm(12.0 * x, 12.0 * y, 12.0 * z, kSeed + 4);
+        return float(std::clamp(2.0 * (shape + 0.8 * (noise - 0.5)), 0.0, 1.0));
+    });
+    openvdb::tools::pruneInactive(grid->tree());
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(inv));
+    grid->setName("density");
+    grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+    return grid;
+}
+
 /// Several grids in one file, in this order: "density" (float fog cloud),
 /// "vel" (vec3s), "ls_sphere" (float level set, background 0.15), "flags"
 /// (int32), "temperature" (float, class unknown, values 300-400).
@@ -196,6 +240,10 @@ std::vector<std::pair<std::string, std::string>> generate_cases() {
         { "sphere_ls", "sphere level set \"ls_sphere\", radius 1, voxel size 0.02, band 3 voxels" },
         { "cloud", "noisy cloud \"density\" (fog, 0..1), 160^3 index box, voxel size "
                    "0.01 x 0.01 x 0.0125, translated" },
+        { "sphere_ls_<R>", "the sphere level set with a radius of R voxels (voxel size 1/R), "
+                           "R in 1..4096; as fog, its interior becomes tiles" },
+        { "cloud_<N>", "the noisy cloud in an N^3 index box" },
+        { "cloudfield_<N>", "a sparse field of 24 cloud puffs in an N^3 index box (1-2 % occupied)" },
         { "multi", "five grids in one file: density (fog), vel (vec3s), ls_sphere (level set, "
                    "background 0.15), flags (int32), temperature (float, class unknown)" },
     };
@@ -209,6 +257,12 @@ openvdb::GridPtrVec make_case(const std::string &name) {
         return { cube(n, true) };
     if (name == "sphere_ls")
         return { sphere_ls() };
+    if (parse_sized(name, "sphere_ls_", n))
+        return { sphere_ls(1.f, 1.f / float(n)) };
+    if (parse_sized(name, "cloudfield_", n))
+        return { cloudfield(n) };
+    if (parse_sized(name, "cloud_", n))
+        return { cloud(std::max(1, n / 2)) };
     if (name == "cloud")
         return { cloud(80) };
     if (name == "multi")

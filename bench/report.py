@@ -1,0 +1,607 @@
+"""CSV files, PNG plots and REPORT.md from the measurements of bench/run.py."""
+import csv
+import os
+import platform
+import statistics
+import subprocess
+import sys
+
+import numpy as np
+
+import metrics
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+PERF_LOG = os.path.join(HERE, "PERF_LOG.md")
+PERF_LOG_HEADER = """# Performance log
+
+The lead's before/after measurements of performance work on `nanovdbvolume`
+(`src/volumes/grid_nanovdb.cpp`, `include/nanovdb_drjit/pnanovdb.h`).
+`bench/run.py` copies this file verbatim into the section "Performance work"
+of `bench/results/REPORT.md`. One entry per change: date, commit, what
+changed, the command, and the numbers before and after (with the load).
+"""
+# Grids whose dense form is at least 300^3 voxels count as "exceeding the
+# caches" (the issue's definition: "300^3 and up").
+LARGE_VOXELS = 300 ** 3
+TARGET_LARGE, TARGET_SMALL = 1.00, 1.10
+TARGET_MEM = 1.01
+TARGET_MEM_SAVING = 10.0
+SPARSE_CASES = ("sphere_fog", "cloud")
+
+
+def mib(b):
+    return "—" if b is None else f"{b / 2 ** 20:,.1f}"
+
+
+def fmt(x, spec=".3f"):
+    return "—" if x is None else format(x, spec)
+
+
+def write_csv(path, rows, fields=None):
+    if not rows:
+        open(path, "w").close()
+        return
+    fields = fields or list(rows[0].keys())
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+
+
+def backend_bytes(r):
+    """The bytes the backend holds for the volume: Dr.Jit's variable storage
+    or its allocator's reservation, whichever is larger (JIT variants); the
+    RSS increase on scalar variants (plain host memory, no Dr.Jit accounting)."""
+    if r.get("jit_storage") is not None:
+        return max(r["jit_storage"], r.get("alloc_held") or 0)
+    return r.get("rss_held")
+
+
+def find(results, **kw):
+    for r in results:
+        if all(r.get(k) == v for k, v in kw.items()):
+            return r
+    return None
+
+
+def machine_info():
+    cpu = platform.processor() or ""
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = ""
+    try:
+        for line in open("/proc/meminfo"):
+            if line.startswith("MemTotal"):
+                mem = f"{int(line.split()[1]) / 2 ** 20:.1f} GiB"
+    except OSError:
+        pass
+    vers = {}
+    try:
+        import importlib.metadata as md
+        for p in ("mitsuba", "drjit", "numpy", "matplotlib"):
+            try:
+                vers[p] = md.version(p)
+            except md.PackageNotFoundError:
+                vers[p] = "not installed"
+    except Exception:
+        pass
+    commit = ""
+    try:
+        commit = subprocess.run(["git", "-C", ROOT, "log", "-1", "--format=%h %s"],
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                text=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--untracked-files=no"],
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                               text=True).stdout.strip()
+        if dirty:
+            commit += " (+ uncommitted changes: " + ", ".join(
+                line[3:] for line in dirty.splitlines()) + ")"
+    except Exception:
+        pass
+    return cpu, os.cpu_count(), mem, vers, commit
+
+
+# ---------------------------------------------------------------------------
+# Derived tables
+
+def time_rows(results):
+    rows = []
+    keys = sorted({(r["case"], r["variant"], r["filter"]) for r in results},
+                  key=lambda k: (k[1], k[0], k[2]))
+    for case, variant, filt in keys:
+        n = find(results, case=case, variant=variant, filter=filt, plugin="nanovdbvolume")
+        g = find(results, case=case, variant=variant, filter=filt, plugin="gridvolume")
+        row = {"case": case, "variant": variant, "filter": filt,
+               "res": (n or g)["spec"]["res"], "spp": (n or g)["spec"]["spp"],
+               "runs": (n or g)["spec"]["runs"]}
+        for tag, r in (("nano", n), ("grid", g)):
+            if r is None:
+                continue
+            row.update({f"{tag}_median_s": r["warm_median_s"], f"{tag}_min_s": r["warm_min_s"],
+                        f"{tag}_first_s": r["first_s"],
+                        f"{tag}_jit_ms": (r["jit_codegen_ms"] + r["jit_backend_ms"])
+                        if "jit_codegen_ms" in r else None,
+                        f"{tag}_jit_kernels": r.get("jit_kernels"),
+                        f"{tag}_load1": r["loadavg_start"][0],
+                        f"{tag}_warm_s": " ".join(f"{t:.4f}" for t in r["warm_s"])})
+        if n and g:
+            row["ratio_median"] = n["warm_median_s"] / g["warm_median_s"]
+            row["ratio_min"] = n["warm_min_s"] / g["warm_min_s"]
+        rows.append(row)
+    return rows
+
+
+def memory_rows(results, case_by_name):
+    rows = []
+    for r in results:
+        if r["filter"] != "trilinear" and find(results, case=r["case"], variant=r["variant"],
+                                                plugin=r["plugin"], filter="trilinear"):
+            continue  # memory does not depend on the filter: one row per plugin
+        c = case_by_name[r["case"]]
+        b = backend_bytes(r)
+        rows.append({"case": r["case"], "variant": r["variant"], "plugin": r["plugin"],
+                     "grid_bytes": c.grid_bytes, "nvdb_file_bytes": c.nvdb_file_bytes,
+                     "dense_bytes": c.dense_bytes, "backend_bytes": b,
+                     "jit_storage": r.get("jit_storage"), "alloc_held": r.get("alloc_held"),
+                     "alloc_peak": r.get("alloc_peak"), "rss_held": r.get("rss_held"),
+                     "peak_rss": r.get("peak_rss"), "peak_rss_increase": r.get("peak_rss_increase"),
+                     "backend_over_grid": b / c.grid_bytes if b else None,
+                     "backend_over_dense": b / c.dense_bytes if b else None,
+                     "load_s": r.get("load_s"), "load1": r["loadavg_start"][0]})
+    return rows
+
+
+def lookup_rows(results):
+    rows = []
+    for r in results:
+        if r["plugin"] != "nanovdbvolume" or "lookups_per_s" not in r:
+            continue
+        g = find(results, case=r["case"], variant=r["variant"], filter=r["filter"],
+                 plugin="gridvolume")
+        rows.append({"case": r["case"], "variant": r["variant"], "filter": r["filter"],
+                     "n": r["lookup_n"], "nano_per_s": r["lookups_per_s"],
+                     "grid_per_s": g["lookups_per_s"] if g else None,
+                     "ratio": r["lookups_per_s"] / g["lookups_per_s"] if g else None,
+                     "nano_first_s": r["lookup_first_s"],
+                     "grid_first_s": g["lookup_first_s"] if g else None,
+                     "note": r.get("lookup_note", ""), "load1": r["loadavg_start"][0]})
+    return rows
+
+
+def equal_time_rows(errors):
+    rows = []
+    keys = sorted({(e["case"], e["variant"], e["filter"]) for e in errors},
+                  key=lambda k: (k[1], k[0], k[2]))
+    for case, variant, filt in keys:
+        pts = {p: [e for e in errors if (e["case"], e["variant"], e["filter"], e["plugin"])
+                   == (case, variant, filt, p)] for p in ("nanovdbvolume", "gridvolume")}
+        if not pts["nanovdbvolume"] or not pts["gridvolume"]:
+            continue
+        m = metrics.error_at_equal_time([(e["time_s"], e["rmse"]) for e in pts["nanovdbvolume"]],
+                                        [(e["time_s"], e["rmse"]) for e in pts["gridvolume"]])
+        top = max(e["spp"] for e in pts["nanovdbvolume"])
+        sn = [e["ssim"] for e in pts["nanovdbvolume"] if e["spp"] == top]
+        sg = [e["ssim"] for e in pts["gridvolume"] if e["spp"] == top]
+        rows.append({"case": case, "variant": variant, "filter": filt, "t_s": m["t"],
+                     "rmse_nano": m["ea"], "rmse_grid": m["eb"], "ratio": m["ratio"],
+                     "cost_ratio": m["cost_ratio"],
+                     "lower": None if m["ratio"] is None else
+                     ("nanovdbvolume" if m["ratio"] < 1 else "gridvolume"),
+                     "ssim_top_spp": top, "ssim_nano": sn[0] if sn else None,
+                     "ssim_grid": sg[0] if sg else None,
+                     "reference": pts["nanovdbvolume"][0]["reference"]})
+    return rows
+
+
+def target_rows(trows, mrows, case_by_name):
+    rows = []
+    for t in trows:
+        if t["variant"] != "llvm_ad_rgb" or "ratio_median" not in t:
+            continue
+        c = case_by_name[t["case"]]
+        large = int(np.prod(c.dense_res)) >= LARGE_VOXELS
+        target = TARGET_LARGE if large else TARGET_SMALL
+        rows.append({"kind": "render time nano/grid (llvm, warm median)", "case": t["case"],
+                     "filter": t["filter"], "size": "large" if large else "small",
+                     "value": t["ratio_median"], "target": f"≤ {target:.2f}",
+                     "ok": t["ratio_median"] <= target})
+    for m in mrows:
+        if m["variant"] != "llvm_ad_rgb" or m["plugin"] != "nanovdbvolume" or not m["backend_bytes"]:
+            continue
+        rows.append({"kind": "backend bytes / grid bytes (nano, llvm)", "case": m["case"],
+                     "filter": "—", "size": "", "value": m["backend_over_grid"],
+                     "target": f"≤ {TARGET_MEM:.2f}", "ok": m["backend_over_grid"] <= TARGET_MEM})
+        g = next((x for x in mrows if x["case"] == m["case"] and x["variant"] == m["variant"]
+                  and x["plugin"] == "gridvolume"), None)
+        if g and g["backend_bytes"] and (m["case"] in SPARSE_CASES
+                                         or case_by_name[m["case"]].source != "generated"):
+            v = g["backend_bytes"] / m["backend_bytes"]
+            rows.append({"kind": "grid backend / nano backend (llvm)", "case": m["case"],
+                         "filter": "—", "size": "", "value": v,
+                         "target": f"≥ {TARGET_MEM_SAVING:.0f}"
+                         + ("" if m["case"] in SPARSE_CASES else " (sparse cases only)"),
+                         "ok": v >= TARGET_MEM_SAVING if m["case"] in SPARSE_CASES else None})
+    return rows
+
+
+# ---------------------------------------------------------------------------
+# Plots
+
+def plots(out, errors, trows, mrows, lrows, case_names):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    plt.rcParams.update({"font.size": 8})
+    colors = {"nanovdbvolume": "tab:blue", "gridvolume": "tab:orange"}
+    files = []
+    dpi = 80
+
+    for case in case_names:
+        for variant in sorted({e["variant"] for e in errors if e["case"] == case}):
+            filters = [f for f in ("trilinear", "nearest")
+                       if any(e["case"] == case and e["variant"] == variant and e["filter"] == f
+                              for e in errors)]
+            fig, axes = plt.subplots(2, len(filters), figsize=(3.4 * len(filters), 4.8),
+                                     squeeze=False)
+            for j, filt in enumerate(filters):
+                for p in ("nanovdbvolume", "gridvolume"):
+                    pts = sorted(((e["time_s"], e["rmse"], e["ssim"], e["spp"]) for e in errors
+                                  if (e["case"], e["variant"], e["filter"], e["plugin"])
+                                  == (case, variant, filt, p)), key=lambda q: q[3])
+                    if not pts:
+                        continue
+                    t, r, s, n = zip(*pts)
+                    ls = "-" if p == "nanovdbvolume" else "--"
+                    axes[0, j].loglog(t, r, "o" + ls, ms=3, color=colors[p], label=p)
+                    axes[1, j].loglog(t, [max(1 - x, 1e-6) for x in s], "o" + ls, ms=3,
+                                      color=colors[p], label=p)
+                    if p == "gridvolume":
+                        for ti, ri, ni in zip(t, r, n):
+                            axes[0, j].annotate(str(ni), (ti, ri), fontsize=6,
+                                                textcoords="offset points", xytext=(3, 3))
+                axes[0, j].set_title(f"{filt}")
+                axes[0, j].set_ylabel("RMSE vs reference")
+                axes[1, j].set_ylabel("1 − SSIM")
+                axes[1, j].set_xlabel("render time, 8 sensors [s]")
+                axes[0, j].grid(True, which="both", alpha=0.3)
+                axes[1, j].grid(True, which="both", alpha=0.3)
+            axes[0, 0].legend(fontsize=7)
+            fig.suptitle(f"{case}, {variant}: error against time (labels: spp)", fontsize=9)
+            fig.tight_layout()
+            name = f"error_time_{case}_{variant}.png".replace(":", "_").replace("/", "_")
+            fig.savefig(os.path.join(out, name), dpi=dpi)
+            plt.close(fig)
+            files.append(name)
+
+    # Render time ratios.
+    if any("ratio_median" in t for t in trows):
+        variants = sorted({t["variant"] for t in trows})
+        fig, axes = plt.subplots(1, len(variants), figsize=(3.6 * len(variants), 3.0),
+                                 squeeze=False)
+        for j, v in enumerate(variants):
+            rows = [t for t in trows if t["variant"] == v and "ratio_median" in t]
+            labels = sorted({t["case"] for t in rows}, key=case_names.index)
+            x = np.arange(len(labels))
+            for k, filt in enumerate(("trilinear", "nearest")):
+                vals = [next((t["ratio_median"] for t in rows if t["case"] == c
+                              and t["filter"] == filt), np.nan) for c in labels]
+                axes[0, j].bar(x + (k - 0.5) * 0.38, vals, 0.38, label=filt)
+            axes[0, j].axhline(1.0, color="k", lw=0.8)
+            axes[0, j].axhline(1.1, color="k", lw=0.8, ls=":")
+            axes[0, j].set_xticks(x, labels, rotation=20, ha="right")
+            axes[0, j].set_title(f"{v}: render time nano / grid")
+            axes[0, j].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, "render_time_ratio.png"), dpi=dpi)
+        plt.close(fig)
+        files.append("render_time_ratio.png")
+
+    # Memory.
+    llvm = [m for m in mrows if m["variant"] == "llvm_ad_rgb"]
+    if llvm:
+        labels = [c for c in case_names if any(m["case"] == c for m in llvm)]
+        series = [("dense bytes", "gridvolume", "dense_bytes"),
+                  ("nano: backend", "nanovdbvolume", "backend_bytes"),
+                  ("grid: backend", "gridvolume", "backend_bytes"),
+                  ("nano: peak RSS incr.", "nanovdbvolume", "peak_rss_increase"),
+                  ("grid: peak RSS incr.", "gridvolume", "peak_rss_increase")]
+        fig, ax = plt.subplots(figsize=(max(4.5, 1.1 * len(labels) + 2), 3.2))
+        x = np.arange(len(labels))
+        w = 0.8 / len(series)
+        for k, (name, plugin, key) in enumerate(series):
+            vals = [(c_rows(llvm, c, plugin, key) or np.nan)
+                    / c_rows(llvm, c, "nanovdbvolume", "grid_bytes") for c in labels]
+            ax.bar(x + (k - len(series) / 2 + 0.5) * w, vals, w, label=name)
+        ax.axhline(1.0, color="k", lw=0.8)
+        ax.set_ylabel("× the grid's bytes (.nvdb)")
+        ax.set_xticks(x, labels, rotation=15, ha="right")
+        ax.set_title("llvm_ad_rgb: memory for the volume")
+        ax.legend(fontsize=6, ncol=2)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, "memory.png"), dpi=dpi)
+        plt.close(fig)
+        files.append("memory.png")
+
+    # Lookups.
+    rows = [r for r in lrows if r["variant"] != "scalar_rgb" and r["grid_per_s"]]
+    if rows:
+        labels = [f"{r['case']}\n{r['filter']}" for r in rows]
+        fig, ax = plt.subplots(figsize=(max(4.0, 0.7 * len(rows) + 1.5), 3.0))
+        x = np.arange(len(rows))
+        ax.bar(x - 0.2, [r["nano_per_s"] / 1e6 for r in rows], 0.4, label="nanovdbvolume")
+        ax.bar(x + 0.2, [r["grid_per_s"] / 1e6 for r in rows], 0.4, label="gridvolume")
+        ax.set_xticks(x, labels, fontsize=6)
+        ax.set_ylabel("M eval_1 / s")
+        ax.set_title(f"{rows[0]['variant']}: random lookups")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, "lookups.png"), dpi=dpi)
+        plt.close(fig)
+        files.append("lookups.png")
+    return files
+
+
+def c_rows(rows, case, plugin, key):
+    r = next((m for m in rows if m["case"] == case and m["plugin"] == plugin), None)
+    return r[key] if r else None
+
+
+# ---------------------------------------------------------------------------
+# REPORT.md
+
+def mark(ok):
+    return "—" if ok is None else ("✓" if ok else "✗")
+
+
+def write_all(a, case_list, results, errors, refs_info, notes, failures, started, elapsed,
+              has_gpu):
+    out = a.out
+    os.makedirs(out, exist_ok=True)
+    for f in os.listdir(out):  # a run replaces the previous one's files
+        if f.endswith((".png", ".csv")) or f == "REPORT.md":
+            os.remove(os.path.join(out, f))
+    case_by_name = {c.name: c for c in case_list}
+    case_names = [c.name for c in case_list]
+    trows = time_rows(results)
+    mrows = memory_rows(results, case_by_name)
+    lrows = lookup_rows(results)
+    erows = equal_time_rows(errors)
+    tgt = target_rows(trows, mrows, case_by_name)
+
+    write_csv(os.path.join(out, "cases.csv"), [c.row() for c in case_list])
+    write_csv(os.path.join(out, "render_time.csv"), trows,
+              sorted({k for r in trows for k in r}, key=lambda k: list(trows[0]).index(k)
+                     if k in trows[0] else 99) if trows else None)
+    write_csv(os.path.join(out, "memory.csv"), mrows)
+    write_csv(os.path.join(out, "lookups.csv"), lrows)
+    write_csv(os.path.join(out, "error_sweep.csv"), errors)
+    write_csv(os.path.join(out, "error_equal_time.csv"), erows)
+    write_csv(os.path.join(out, "references.csv"), refs_info,
+              ["case", "filter", "plugin", "res", "spp", "passes", "time_s", "cached",
+               "noise_rmse", "rmse_between"])
+    write_csv(os.path.join(out, "targets.csv"), tgt)
+
+    try:
+        pngs = plots(out, errors, trows, mrows, lrows, case_names)
+        plot_note = None
+    except ImportError as e:
+        pngs = []
+        plot_note = (f"matplotlib is not installed ({e}): no plots. "
+                     "`pip install matplotlib==3.11.2` (scripts/install.sh pins it).")
+        print("WARNING: " + plot_note, file=sys.stderr)
+        if a.mode != "fast":
+            failures.append(("plots", plot_note))
+
+    if not os.path.exists(PERF_LOG):
+        with open(PERF_LOG, "w") as f:
+            f.write(PERF_LOG_HEADER)
+
+    cpu, ncpu, mem, vers, commit = machine_info()
+    L = []
+    w = L.append
+    w("# nanovdbvolume vs gridvolume: benchmark report\n")
+    w(f"Generated by `{' '.join(['python3', 'bench/run.py'] + sys.argv[1:])}` "
+      f"({a.mode} mode) on {started:%Y-%m-%d %H:%M %Z}, in {elapsed / 60:.1f} min. "
+      "Methodology and caveats: [bench/README.md](../README.md). Benchmarks are "
+      "measurements: the ✓/✗ below are reported, not asserted.\n")
+    w(f"- Machine: {cpu}, {ncpu} cores, {mem} RAM; {platform.platform()}.")
+    w(f"- Software: Python {platform.python_version()}, "
+      + ", ".join(f"{k} {v}" for k, v in vers.items()) + ".")
+    w(f"- Plugin: `build/plugins/nanovdbvolume.so` as built at the time of the run; "
+      f"repository at {commit or 'unknown commit'}.")
+    w(f"- Scene: the volume in the unit cube (null BSDF, `heterogeneous` medium, scale 40, "
+      "albedo 0.9), `volpath` max_depth 64, constant sky + sun (as `scenes/cloud.xml`), "
+      "a turntable of 8 sensors (35° fov, elevation 22°, distance 2.92). The same scene for "
+      "both plugins; `gridvolume` reads the aligned dense `.vol` export of the same active box.")
+    w(f"- JIT variants: {a.res}² pixels per sensor, {a.spp} spp for the timings, "
+      f"{a.runs} warm runs, sweep {a.sweep} spp. Scalar: {a.scalar_res}², {a.scalar_spp} spp, "
+      f"sweep {a.scalar_sweep}. References: llvm_ad_rgb, {a.ref_spp} spp in "
+      f"{a.ref_passes} passes.")
+    w(f"- Variants measured: {', '.join(sorted({r['variant'] for r in results})) or 'none'}. "
+      + ("GPU present." if has_gpu else "**cuda_ad_rgb: no GPU, not measured.**"))
+    loads = [r["loadavg_start"][0] for r in results]
+    if loads:
+        w(f"- Machine load (1-min load average at each worker's start): min {min(loads):.2f}, "
+          f"median {statistics.median(loads):.2f}, max {max(loads):.2f} "
+          "(per measurement in the CSV files).")
+    for n in notes:
+        w(f"- {n}")
+    if plot_note:
+        w(f"- {plot_note}")
+    if failures:
+        w(f"- **{len(failures)} measurement(s) failed:** "
+          + ", ".join(f"`{t}`" for t, _ in failures))
+    w("")
+
+    w("## Summary\n")
+    for v in sorted({t["variant"] for t in trows}):
+        for filt in ("trilinear", "nearest"):
+            rs = [(t["case"], t["ratio_median"]) for t in trows
+                  if t["variant"] == v and t["filter"] == filt and "ratio_median" in t]
+            if rs:
+                w(f"- {v}, {filt}: render time nano/grid at equal spp "
+                  + ", ".join(f"{c} {r:.2f}" for c, r in rs) + ".")
+    for m in mrows:
+        if m["variant"] == "llvm_ad_rgb" and m["plugin"] == "nanovdbvolume" and m["backend_bytes"]:
+            g = next((x for x in mrows if x["case"] == m["case"] and x["variant"] == m["variant"]
+                      and x["plugin"] == "gridvolume"), None)
+            w(f"- {m['case']}, llvm_ad_rgb memory: nano holds {m['backend_over_grid']:.4f} × the "
+              f"grid's bytes" + (f"; gridvolume holds {g['backend_bytes'] / m['backend_bytes']:.2f}"
+                                 " × what nano holds" if g and g["backend_bytes"] else "") + ".")
+    for e in erows:
+        if e["ratio"] is not None and e["variant"] == "llvm_ad_rgb":
+            w(f"- {e['case']}, {e['variant']}, {e['filter']}: at equal time "
+              f"({e['t_s']:.2f} s) {e['lower']} has the lower RMSE "
+              f"(nano/grid {e['ratio']:.2f}; cost ratio {e['cost_ratio']:.2f}).")
+    w("")
+
+    w("## Cases\n")
+    w("| case | grid | dense box | grid bytes | .nvdb file | dense bytes | grid / dense | "
+      "border voxels all 0 |")
+    w("|---|---|---|---:|---:|---:|---:|:-:|")
+    for c in case_list:
+        w(f"| {c.name} | {c.grid_name or '—'} | {'×'.join(map(str, c.dense_res))} | "
+          f"{c.grid_bytes:,} | {c.nvdb_file_bytes:,} | {c.dense_bytes:,} | "
+          f"{c.grid_bytes / c.dense_bytes:.3f} | {'yes' if c.border_background else 'no'} |")
+    w("")
+    w("Descriptions: " + "; ".join(f"**{c.name}**: {c.description}" for c in case_list) + ".\n")
+
+    w("## Targets (llvm_ad_rgb)\n")
+    w(f"Render time: `nanovdbvolume / gridvolume` of the warm medians at equal spp, ≤ "
+      f"{TARGET_LARGE:.2f} on grids whose dense form has ≥ 300³ voxels (\"exceeds the caches\"), "
+      f"≤ {TARGET_SMALL:.2f} on smaller ones. Memory: the bytes the backend holds for the volume "
+      f"≤ {TARGET_MEM} × the grid's bytes, and ≥ {TARGET_MEM_SAVING:.0f}× less than "
+      "`gridvolume` on the sphere fog and the noisy cloud.\n")
+    if tgt:
+        w("| target | case | filter | size | measured | target | |")
+        w("|---|---|---|---|---:|---|:-:|")
+        for t in tgt:
+            w(f"| {t['kind']} | {t['case']} | {t['filter']} | {t['size']} | {t['value']:.3f} | "
+              f"{t['target']} | {mark(t['ok'])} |")
+    else:
+        w("No llvm_ad_rgb measurements in this run.")
+    w("")
+
+    w("## Render time at equal spp\n")
+    w("One turntable = the 8 sensors rendered one after the other (`mi.render(scene, "
+      "sensor=i)`). Warm: median (min) of the warm runs. First: the first turntable in a fresh "
+      "process with an empty Dr.Jit kernel cache; JIT: the compile time in it "
+      "(codegen + backend, from `dr.kernel_history()`). load: 1-min load average.\n")
+    w("| variant | case | filter | nano warm [s] | grid warm [s] | **nano/grid** | "
+      "nano first [s] | grid first [s] | nano JIT [ms] | grid JIT [ms] | load |")
+    w("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for t in trows:
+        w(f"| {t['variant']} | {t['case']} | {t['filter']} | "
+          f"{fmt(t.get('nano_median_s'))} ({fmt(t.get('nano_min_s'))}) | "
+          f"{fmt(t.get('grid_median_s'))} ({fmt(t.get('grid_min_s'))}) | "
+          f"**{fmt(t.get('ratio_median'))}** | {fmt(t.get('nano_first_s'))} | "
+          f"{fmt(t.get('grid_first_s'))} | {fmt(t.get('nano_jit_ms'), '.0f')} | "
+          f"{fmt(t.get('grid_jit_ms'), '.0f')} | {fmt(t.get('nano_load1'), '.2f')} |")
+    if "render_time_ratio.png" in pngs:
+        w("\n![render time ratio](render_time_ratio.png)")
+    w("")
+
+    w("## Memory\n")
+    w("Measured around `mi.load_dict()` of the volume alone, in a fresh process per plugin. "
+      "**backend**: the bytes the backend holds for the volume — on JIT variants the larger of "
+      "Dr.Jit's variable storage (`dr.whos()`, exact sizes, includes buffers the plugin hands "
+      "to Dr.Jit) and its allocator's reservation (`dr.detail.malloc_watermark` after "
+      "`malloc_clear_statistics`; rounded up to powers of two, and blind to adopted buffers); "
+      "on scalar variants the RSS increase. **peak RSS incr.**: the process's peak RSS "
+      "(`ru_maxrss`) after loading minus its RSS before loading. MiB = 2²⁰ B.\n")
+    w("| variant | case | plugin | grid [MiB] | dense [MiB] | **backend [MiB]** | "
+      "backend / grid | backend / dense | Dr.Jit storage | allocator held (peak) | RSS held | "
+      "peak RSS incr. | peak RSS |")
+    w("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for m in sorted(mrows, key=lambda m: (m["variant"], case_names.index(m["case"]), m["plugin"])):
+        w(f"| {m['variant']} | {m['case']} | {m['plugin']} | {mib(m['grid_bytes'])} | "
+          f"{mib(m['dense_bytes'])} | **{mib(m['backend_bytes'])}** | "
+          f"{fmt(m['backend_over_grid'])} | {fmt(m['backend_over_dense'])} | "
+          f"{mib(m['jit_storage'])} | {mib(m['alloc_held'])} ({mib(m['alloc_peak'])}) | "
+          f"{mib(m['rss_held'])} | {mib(m['peak_rss_increase'])} | {mib(m['peak_rss'])} |")
+    if "memory.png" in pngs:
+        w("\n![memory](memory.png)")
+    w("")
+
+    w("## Error against run time\n")
+    w("RMSE over the 8 sensors' pixels against a converged reference, minus the reference's "
+      "own noise (estimated from its independent passes), and SSIM (luminance, 11×11 Gaussian "
+      "window σ = 1.5), over the spp sweep; the time is that of the turntable at that spp (warm). "
+      "Both plugins use the same seeds. References: **trilinear: one per plugin** (the plugins "
+      "differ in the outer half voxel, where `nanovdbvolume` blends towards the background and "
+      "`gridvolume` clamps; see the difference below), **nearest: `gridvolume`'s for both** "
+      "(the lookups are identical). At equal time: both curves interpolated in log-log at the "
+      "longest time both sweeps reach; ratio < 1 means `nanovdbvolume` has the "
+      "lower error. Cost ratio: (RMSE² × time) nano / grid, the time nano needs for the error "
+      "grid reaches in unit time.\n")
+    w("| variant | case | filter | at t [s] | RMSE nano | RMSE grid | **nano/grid** | lower | "
+      "cost ratio | SSIM nano / grid (spp) |")
+    w("|---|---|---|---:|---:|---:|---:|---|---:|---|")
+    for e in erows:
+        lower = e["lower"]
+        by = "" if e["ratio"] is None else (
+            f" by {abs(1 - e['ratio']) * 100:.1f} %" if lower == "nanovdbvolume"
+            else f" by {abs(1 - 1 / e['ratio']) * 100:.1f} %")
+        w(f"| {e['variant']} | {e['case']} | {e['filter']} | {fmt(e['t_s'])} | "
+          f"{fmt(e['rmse_nano'], '.4g')} | {fmt(e['rmse_grid'], '.4g')} | "
+          f"**{fmt(e['ratio'])}** | {lower}{by} | {fmt(e['cost_ratio'])} | "
+          f"{fmt(e['ssim_nano'], '.4f')} / {fmt(e['ssim_grid'], '.4f')} ({e['ssim_top_spp']}) |")
+    w("")
+    diffs = [r for r in refs_info if r["plugin"] == "difference"]
+    if diffs:
+        w("Trilinear references of the two plugins compared (RMSE between them, and the RMSE "
+          "their noise alone would give): a difference well above the noise is the border "
+          "convention, i.e. a real difference of the images, not of the speed.\n")
+        w("| case | res | RMSE between refs | noise only |")
+        w("|---|---:|---:|---:|")
+        for d in diffs:
+            w(f"| {d['case']} | {d['res']} | {d['rmse_between']:.4g} | {d['noise_rmse']:.4g} |")
+        w("")
+    for p in pngs:
+        if p.startswith("error_time_"):
+            w(f"![{p[:-4]}]({p})")
+    w("")
+
+    w("## Lookup throughput\n")
+    w("Random points, uniform in the unit cube, `vol.eval_1(it)`; median of the warm runs. "
+      "JIT variants: one vectorized call over all points (first call: with compilation). "
+      "Scalar: one Python call per lookup, so the binding's overhead dominates both plugins.\n")
+    w("| variant | case | filter | points | nano [M/s] | grid [M/s] | **nano/grid** | load |")
+    w("|---|---|---|---:|---:|---:|---:|---:|")
+    for r in lrows:
+        w(f"| {r['variant']} | {r['case']} | {r['filter']} | {r['n']:,} | "
+          f"{r['nano_per_s'] / 1e6:.3f} | {fmt(r['grid_per_s'] and r['grid_per_s'] / 1e6)} | "
+          f"**{fmt(r['ratio'])}** | {r['load1']:.2f} |")
+    if "lookups.png" in pngs:
+        w("\n![lookups](lookups.png)")
+    w("")
+
+    w("## References\n")
+    w("| case | filter | plugin | res | spp | time [s] | noise RMSE | cached |")
+    w("|---|---|---|---:|---:|---:|---:|:-:|")
+    for r in refs_info:
+        if r["plugin"] != "difference":
+            w(f"| {r['case']} | {r['filter']} | {r['plugin']} | {r['res']} | {r['spp']} | "
+              f"{r['time_s']:.1f} | {r['noise_rmse']:.3g} | {'yes' if r['cached'] else 'no'} |")
+    w("")
+
+    w("## Files\n")
+    w("CSV: " + ", ".join(f"`{f}`" for f in ("cases.csv", "render_time.csv", "memory.csv",
+                                             "lookups.csv", "error_sweep.csv",
+                                             "error_equal_time.csv", "references.csv",
+                                             "targets.csv")) + ". Plots: "
+      + (", ".join(f"`{p}`" for p in pngs) or "none") + ".\n")
+
+    w("## Performance work\n")
+    w("The contents of `bench/PERF_LOG.md`, verbatim:\n")
+    w(open(PERF_LOG).read().rstrip("\n"))
+    w("")
+    with open(os.path.join(out, "REPORT.md"), "w") as f:
+        f.write("\n".join(L) + "\n")
