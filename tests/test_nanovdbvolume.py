@@ -247,6 +247,62 @@ def test12_empty_grid_is_background(variants_rgb, make_grid):
     assert np.all(eval_points(vol, random_points(100, 12)) == 0.0)
 
 
+
+# ---------------------------------------------------------------------------
+#  Invalid voxel values: NaN, Inf, negative (parameter invalid_values)
+# ---------------------------------------------------------------------------
+
+def _single_voxel_with(make_grid, tmp_path, value, name):
+    """single_voxel (3.0 at (7, -3, 12)) with every stored 3.0 replaced."""
+    nvdb, _ = make_grid("single_voxel", dense=False)
+    data = bytearray(Path(nvdb).read_bytes())
+    three, new = struct.pack("<f", 3.0), struct.pack("<f", value)
+    i = data.find(three, 200)
+    while i >= 0:
+        data[i:i + 4] = new
+        i = data.find(three, i + 4)
+    path = tmp_path / name
+    path.write_bytes(bytes(data))
+    return str(path)
+
+
+@pytest.mark.parametrize("value, word", [(float("nan"), "NaN"), (float("inf"), "+Inf"),
+                                         (float("-inf"), "-Inf")])
+def test15_non_finite_values_rejected_at_the_voxel(variant_scalar_rgb, make_grid, tmp_path,
+                                                  value, word):
+    path = _single_voxel_with(make_grid, tmp_path, value, "bad_value.nvdb")
+    with pytest.raises(RuntimeError, match=r"(?s)bad_value\.nvdb.*single_voxel.*"
+                       r"\(7, -3, 12\).*invalid_values"):
+        load_nvdb(path)
+
+
+@pytest.mark.parametrize("value, expected", [(float("nan"), 0.0), (float("-inf"), 0.0),
+                                             (-2.5, 0.0)])
+def test16_clamp_replaces_invalid_values(variants_rgb, make_grid, tmp_path, value, expected):
+    path = _single_voxel_with(make_grid, tmp_path, value, "clamp_me.nvdb")
+    vol = load_nvdb(path, invalid_values="clamp", filter_type="nearest")
+    v = eval_points(vol, [[0.5, 0.5, 0.5]])
+    assert np.all(v == expected) and np.all(np.isfinite(v))
+    assert vol.max() == 0.0
+
+
+def test17_negative_values_load_by_default(variant_scalar_rgb, make_grid, tmp_path):
+    # A volume is not always a density: negatives load (with a warning)
+    path = _single_voxel_with(make_grid, tmp_path, -2.5, "negative.nvdb")
+    vol = load_nvdb(path, filter_type="nearest")
+    assert np.all(eval_points(vol, [[0.5, 0.5, 0.5]]) == -2.5)
+    assert vol.max() == 0.0   # the background bounds the negative voxel
+    with pytest.raises(RuntimeError, match="invalid_values"):
+        load_nvdb(path, invalid_values="ignore")
+
+
+def test18_clamped_inf_becomes_the_largest_finite_value(variant_scalar_rgb, make_grid, tmp_path):
+    path = _single_voxel_with(make_grid, tmp_path, float("inf"), "posinf.nvdb")
+    vol = load_nvdb(path, invalid_values="clamp", filter_type="nearest")
+    # The only finite value left is the background 0: +Inf -> 0, max() finite
+    assert np.isfinite(vol.max())
+    assert np.all(np.isfinite(eval_points(vol, [[0.5, 0.5, 0.5]])))
+
 # ---------------------------------------------------------------------------
 #  Renders: nanovdbvolume vs gridvolume, same scene, same seed
 # ---------------------------------------------------------------------------

@@ -49,6 +49,15 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
      (its index-to-world map from the file), so the volume lines up with
      other VDB tools. (Default: ``false``)
 
+ * - invalid_values
+   - |string|
+   - What to do with NaN, infinite and negative voxel or tile values:
+     ``error``: refuse a grid with NaN or infinite values, naming the first
+     offending voxel (negative values load, with a warning);
+     ``clamp``: replace NaN by 0, +Inf by the largest finite value of the
+     grid, -Inf and negative values by 0, with a warning that counts them.
+     (Default: ``error``)
+
  * - to_world
    - |transform|
    - Transformation applied to the volume's local space. (Default: identity)
@@ -80,7 +89,8 @@ must point inside it), so lookups can trust it. ``max()`` is the maximum of
 every value that a lookup can return (background, tiles and all leaf values,
 active or not), a true upper bound for the ``heterogeneous`` medium's
 majorant; trilinear results are clamped to it, because rounded interpolation
-weights can overshoot the largest corner value by a few ulps. Grids containing NaN or infinite values are rejected. Only float
+weights can overshoot the largest corner value by a few ulps. Grids containing
+NaN or infinite values are rejected unless ``invalid_values="clamp"``. Only float
 grids are supported; other grid types fail with a message that names them.
 
 .. tabs::
@@ -126,6 +136,13 @@ public:
 
         m_use_grid_transform = props.get<bool>("use_grid_transform", false);
 
+        std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
+        if (invalid == "clamp")
+            m_clamp_invalid = true;
+        else if (invalid != "error")
+            Throw("Invalid value \"%s\" for invalid_values, must be one of: \"error\" or "
+                  "\"clamp\"!", invalid);
+
         fs::path file_path =
             file_resolver()->resolve(props.get<std::string_view>("filename"));
         m_filename = file_path.string();
@@ -143,11 +160,6 @@ public:
 
         m_grid_name = info.name;
         m_background = info.background;
-        if (info.nan_count > 0 || info.inf_count > 0)
-            Throw("nanovdbvolume: \"%s\": grid \"%s\" contains %llu NaN and %llu "
-                  "infinite values; only finite values can be rendered.",
-                  m_filename, m_grid_name, (unsigned long long) info.nan_count,
-                  (unsigned long long) info.inf_count);
         m_max = info.value_max;
         m_max_opaque = dr::opaque<Float>(m_max);
 
@@ -312,6 +324,40 @@ private:
     }
 
     /**
+     * The policy for NaN, infinite and negative values, applied on the host
+     * before the grid reaches the backend (see the invalid_values parameter).
+     * Scans only grids whose validation already found such values.
+     */
+    void check_values(void *data, size_t bytes, const std::string &grid,
+                      nanovdb_drjit::io::FloatGridInfo &info) {
+        namespace io = nanovdb_drjit::io;
+        bool non_finite = info.nan_count > 0 || info.inf_count > 0,
+             negative = info.value_min < 0.f;
+        if (!non_finite && !negative)
+            return;
+        io::ValueScan scan = io::scan_values(m_filename, data, bytes);
+        if (!m_clamp_invalid) {
+            if (non_finite)
+                Throw("nanovdbvolume: \"%s\": grid \"%s\" contains %s; only finite "
+                      "values can be rendered. Set invalid_values=\"clamp\" to replace "
+                      "NaN by 0, +Inf by the largest finite value and -Inf and negative "
+                      "values by 0.", m_filename, grid, io::describe_invalid_values(scan));
+            Log(Warn, "\"%s\": grid \"%s\" contains %llu negative values (first: %s); "
+                "a negative density makes no physical sense. Set "
+                "invalid_values=\"clamp\" to replace them by 0.", m_filename, grid,
+                (unsigned long long) scan.negative_count,
+                io::describe_location(scan.first_negative));
+            return;
+        }
+        io::SanitizeResult r = io::sanitize_values(m_filename, data, bytes);
+        Log(Warn, "\"%s\": grid \"%s\": replaced %llu NaN by 0, %llu +Inf by the largest "
+            "finite value, %llu -Inf and %llu negative values by 0 (invalid_values=clamp).",
+            m_filename, grid, (unsigned long long) r.nan, (unsigned long long) r.posinf,
+            (unsigned long long) r.neginf, (unsigned long long) r.negative);
+        info = io::validate_float_grid(m_filename, data, bytes);
+    }
+
+    /**
      * Decides, once per file, which of the translation's readers the kernels
      * use (traced as one code path per file, never as a runtime branch):
      * CompactOffsets where every child offset fits the low word, and an
@@ -466,6 +512,7 @@ private:
                 std::memset((uint8_t *) ptr + bytes, 0, alloc_bytes - bytes);
                 io::read_grid(m_filename, entry, ptr);
                 info = io::validate_float_grid(m_filename, ptr, bytes);
+                check_values(ptr, bytes, entry.name, info);
                 prepare_readers((const uint32_t *) ptr, bytes, info);
             } catch (...) {
                 std::free(ptr);
@@ -484,6 +531,7 @@ private:
             std::memset((uint8_t *) host.get() + bytes, 0, alloc_bytes - bytes);
             io::read_grid(m_filename, entry, host.get());
             io::FloatGridInfo info = io::validate_float_grid(m_filename, host.get(), bytes);
+            check_values(host.get(), bytes, entry.name, info);
             prepare_readers(host.get(), bytes, info);
             if constexpr (dr::is_jit_v<Float>)
                 m_buffer = dr::load<UInt32>(host.get(), words); // GPU copy; host freed here
@@ -513,6 +561,7 @@ private:
     size_t m_buffer_bytes = 0;
     bool m_nearest = false;
     bool m_use_grid_transform = false;
+    bool m_clamp_invalid = false;
     std::string m_filename, m_grid_name;
 
     MI_TRAVERSE_CB(Base, m_buffer, m_root, m_min, m_dims, m_index_from_world, m_max_opaque,
