@@ -19,10 +19,13 @@
 #include <openvdb/openvdb.h>
 
 #include "nanovdb_drjit/io.h"
+#include "nanovdb_drjit/pnanovdb.h"
 
+#include <sys/mman.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -1123,4 +1126,434 @@ TEST_CASE("the real files in shared/data") {
         CHECK(count == 4);
         CHECK(offset == all.size());
     }
+}
+
+// =====================================================================================
+// Values: scan_values() and sanitize_values() (NaN / Inf / negative policy support)
+// =====================================================================================
+
+namespace {
+
+/// OpenVDB grid with one chosen value at one level, converted by NanoVDB.
+/// level 4: the background; 3: a root tile; 2: an upper-node tile; 1: a
+/// lower-node tile; 0: a voxel. Plus an ordinary voxel (5, 5, 5) = 1.
+Handle one_value_grid(int level, const openvdb::Coord &ijk, float value) {
+    openvdb::initialize();
+    auto g = openvdb::FloatGrid::create(level == 4 ? value : 0.f);
+    g->setName("one_value");
+    g->tree().setValueOn(openvdb::Coord(5, 5, 5), 1.0f);
+    if (level >= 1 && level <= 3) g->tree().addTile(level, ijk, value, true);
+    if (level == 0) g->tree().setValueOn(ijk, value);
+    return nanovdb::openToNanoVDB(*g, nanovdb::StatsMode::Disable);
+}
+
+struct Counts { uint64_t nan = 0, posinf = 0, neginf = 0, negative = 0, all = 0; };
+
+/// The same counts through NanoVDB's own node structs (every value a lookup
+/// can return, see brute_force()).
+Counts brute_counts(const nanovdb::FloatGrid &grid) {
+    Counts c;
+    auto add = [&](float v) {
+        ++c.all;
+        if (std::isnan(v)) ++c.nan;
+        else if (v == std::numeric_limits<float>::infinity()) ++c.posinf;
+        else if (v == -std::numeric_limits<float>::infinity()) ++c.neginf;
+        else if (v < 0.f) ++c.negative;
+    };
+    const auto &tree = grid.tree();
+    const auto &root = tree.root();
+    add(root.background());
+    for (uint32_t i = 0; i < root.tileCount(); ++i)
+        if (!root.data()->tile(i)->isChild()) add(root.data()->tile(i)->value);
+    const auto *upper = tree.getFirstNode<2>();
+    for (uint32_t i = 0; i < tree.nodeCount(2); ++i)
+        for (uint32_t n = 0; n < 32768; ++n)
+            if (!upper[i].data()->isChild(n)) add(upper[i].data()->getValue(n));
+    const auto *lower = tree.getFirstNode<1>();
+    for (uint32_t i = 0; i < tree.nodeCount(1); ++i)
+        for (uint32_t n = 0; n < 4096; ++n)
+            if (!lower[i].data()->isChild(n)) add(lower[i].data()->getValue(n));
+    const auto *leaf = tree.getFirstNode<0>();
+    for (uint32_t i = 0; i < tree.nodeCount(0); ++i)
+        for (uint32_t n = 0; n < 512; ++n) add(leaf[i].getValue(n));
+    return c;
+}
+
+void check_counts(const nio::ValueScan &s, const nanovdb::FloatGrid &grid) {
+    const Counts c = brute_counts(grid);
+    CHECK(s.value_count == c.all);
+    CHECK(s.nan_count == c.nan);
+    CHECK(s.posinf_count == c.posinf);
+    CHECK(s.neginf_count == c.neginf);
+    CHECK(s.negative_count == c.negative);
+    CHECK(s.has_nan == (c.nan > 0));
+    CHECK(s.has_inf == (c.posinf + c.neginf > 0));
+    CHECK(s.has_negative == (c.negative > 0));
+}
+
+std::array<int32_t, 3> xyz(const nio::ValueLocation &l) { return { l.ijk[0], l.ijk[1], l.ijk[2] }; }
+
+} // namespace
+
+TEST_CASE("scan_values: counts, and the coordinate of the first offending value") {
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    const float inf = std::numeric_limits<float>::infinity();
+
+    SUBCASE("voxels: NaN, +Inf, -Inf (GridBuilder grid)") {
+        const Handle h = nan_inf_grid();
+        const auto s = nio::scan_values("nans", h.data(), h.size());
+        check_counts(s, *h.grid<float>());
+        CHECK(s.nan_count == 2);
+        CHECK(s.posinf_count == 1);
+        CHECK(s.neginf_count == 1);
+        CHECK(s.negative_count == 0);
+        REQUIRE(s.has_nan);
+        CHECK(s.first_nan.level == 0);
+        CHECK(xyz(s.first_nan) == std::array<int32_t, 3>{ 0, 0, 0 });
+        CHECK(s.first_nan.reachable);
+        REQUIRE(s.has_inf);
+        CHECK(xyz(s.first_inf) == std::array<int32_t, 3>{ 2, 0, 0 });
+        CHECK(s.finite_max == 4.0f);
+        // The byte really holds the value
+        float v;
+        std::memcpy(&v, reinterpret_cast<const uint8_t *>(h.data()) + s.first_inf.byte, 4);
+        CHECK(v == inf);
+        CHECK(nio::describe_location(s.first_nan) == "voxel (0, 0, 0)");
+        CHECK(nio::describe_invalid_values(s) ==
+              "2 NaN (first: voxel (0, 0, 0)), 1 +Inf and 1 -Inf values "
+              "(first infinite: voxel (2, 0, 0))");
+        // Agrees with validate_float_grid's counts
+        const auto info = validate_handle(h, "nans");
+        CHECK(info.nan_count == s.nan_count);
+        CHECK(info.inf_count == s.posinf_count + s.neginf_count);
+    }
+    SUBCASE("a NaN at every level, negative coordinates: the lookup's coordinate") {
+        struct Case { int level; openvdb::Coord ijk; std::array<int32_t, 3> expect; const char *text; };
+        const Case cases[] = {
+            { 0, openvdb::Coord(-1, -9, -4097), { -1, -9, -4097 }, "voxel (-1, -9, -4097)" },
+            { 1, openvdb::Coord(-9, 130, 7), { -16, 128, 0 },
+              "lower-node tile (8^3 voxels) at (-16, 128, 0)" },
+            { 2, openvdb::Coord(-300, 5, -5), { -384, 0, -128 },
+              "upper-node tile (128^3 voxels) at (-384, 0, -128)" },
+            { 3, openvdb::Coord(-5000, 10, 4096), { -8192, 0, 4096 },
+              "root tile (4096^3 voxels) at (-8192, 0, 4096)" },
+            { 4, openvdb::Coord(0, 0, 0), { 0, 0, 0 }, "background" },
+        };
+        for (const Case &c : cases) {
+            INFO("level " << c.level);
+            const Handle h = one_value_grid(c.level, c.ijk, nan);
+            const auto s = nio::scan_values("one", h.data(), h.size());
+            check_counts(s, *h.grid<float>());
+            REQUIRE(s.has_nan);
+            CHECK(s.first_nan.level == uint32_t(c.level));
+            CHECK(xyz(s.first_nan) == c.expect);
+            CHECK(nio::describe_location(s.first_nan) == c.text);
+            // NanoVDB's own accessor reads the NaN at the reported coordinate
+            if (c.level < 4) {
+                auto acc = h.grid<float>()->getAccessor();
+                CHECK(std::isnan(acc.getValue(nanovdb::Coord(c.expect[0], c.expect[1], c.expect[2]))));
+            }
+        }
+    }
+    SUBCASE("negatives: an inactive upper tile comes before the leaves") {
+        const Handle h = tile_grid();
+        const auto s = nio::scan_values("tiles", h.data(), h.size());
+        check_counts(s, *h.grid<float>());
+        CHECK(s.nan_count == 0);
+        CHECK(!s.has_inf);
+        REQUIRE(s.has_negative);
+        CHECK(s.negative_count == 2); // the -50 upper tile and the -2 voxel
+        CHECK(s.first_negative.level == 2);
+        CHECK(xyz(s.first_negative) == std::array<int32_t, 3>{ 0, 0, 128 });
+        CHECK(s.finite_max == 100.0f);
+    }
+    SUBCASE("a level set's values are negative inside: counted, not an error") {
+        const Handle h = ls_torus();
+        const auto s = nio::scan_values("torus", h.data(), h.size());
+        check_counts(s, *h.grid<float>());
+        CHECK(s.negative_count > 0);
+        CHECK(s.first_negative.level == 0);
+    }
+    SUBCASE("clean grid; empty grid with a NaN background") {
+        const Handle sphere = fog_sphere();
+        const auto s = nio::scan_values("sphere", sphere.data(), sphere.size());
+        check_counts(s, *sphere.grid<float>());
+        CHECK(!s.has_nan);
+        CHECK(!s.has_inf);
+        CHECK(!s.has_negative);
+        nanovdb::GridBuilder<float> builder(nan, nanovdb::GridClass::FogVolume);
+        const Handle e = builder.getHandle(1.0, nanovdb::Vec3d(0), "empty_nan");
+        const auto se = nio::scan_values("empty", e.data(), e.size());
+        CHECK(se.value_count == 1);
+        CHECK(se.nan_count == 1);
+        CHECK(se.first_nan.level == 4);
+        CHECK(se.finite_max == -inf);
+    }
+    SUBCASE("a node no root tile reaches: scanned, flagged unreachable") {
+        // Turn the root tile that leads to the sphere's only upper node into a
+        // value tile: the upper node (and everything below) is unreachable.
+        const Handle sphere = fog_sphere();
+        Bytes b = handle_bytes(sphere);
+        const auto &grid = *sphere.grid<float>();
+        const auto &root = grid.tree().root();
+        REQUIRE(grid.tree().nodeCount(2) >= 1);
+        const uint64_t leaf0 = offset_in(grid, grid.tree().getFirstNode<0>());
+        poke<float>(b, leaf0 + 96 + 4 * 17, nan); // a NaN in the first leaf
+        const auto before = nio::scan_values("b", b.data(), b.size());
+        REQUIRE(before.has_nan);
+        CHECK(before.first_nan.reachable);
+        for (uint32_t i = 0; i < root.tileCount(); ++i)
+            poke<int64_t>(b, offset_in(grid, root.data()->tile(i)) + 8, 0);
+        const auto after = nio::scan_values("b", b.data(), b.size());
+        REQUIRE(after.has_nan);
+        CHECK(!after.first_nan.reachable);
+        CHECK(xyz(after.first_nan) == xyz(before.first_nan));
+        CHECK(nio::describe_location(after.first_nan).find("no root tile reaches") !=
+              std::string::npos);
+    }
+    SUBCASE("invalid buffers: the validator's errors") {
+        const Handle sphere = fog_sphere();
+        Bytes b = handle_bytes(sphere);
+        poke<uint64_t>(b, 672 + 24, b.size()); // root offset outside
+        CHECK_IO_ERROR(nio::scan_values("bad", b.data(), b.size()), "bad", "root node offset");
+        CHECK_IO_ERROR(nio::sanitize_values("bad", b.data(), b.size()), "bad", "root node offset");
+    }
+}
+
+TEST_CASE("sanitize_values replaces NaN, Inf and negatives in place") {
+    const float inf = std::numeric_limits<float>::infinity();
+    SUBCASE("NaN -> 0, +Inf -> largest finite value, -Inf -> 0") {
+        const Handle h = nan_inf_grid();
+        Aligned a(h.size());
+        std::memcpy(a.data(), h.data(), h.size());
+        const auto r = nio::sanitize_values("nans", a.data(), a.size);
+        CHECK(r.nan == 2);
+        CHECK(r.posinf == 1);
+        CHECK(r.neginf == 1);
+        CHECK(r.negative == 0);
+        CHECK(r.total() == 4);
+        const auto info = nio::validate_float_grid("nans", a.data(), a.size);
+        CHECK(info.nan_count == 0);
+        CHECK(info.inf_count == 0);
+        CHECK(info.value_max == 4.0f);
+        CHECK(info.value_min == 0.0f);
+        // Read back with NanoVDB's accessor
+        const auto *g = reinterpret_cast<const nanovdb::FloatGrid *>(a.data());
+        auto acc = g->getAccessor();
+        CHECK(acc.getValue(nanovdb::Coord(0, 0, 0)) == 0.0f);
+        CHECK(acc.getValue(nanovdb::Coord(1, 0, 0)) == 0.0f);
+        CHECK(acc.getValue(nanovdb::Coord(2, 0, 0)) == 4.0f);
+        CHECK(acc.getValue(nanovdb::Coord(3, 0, 0)) == 4.0f);
+        CHECK(acc.getValue(nanovdb::Coord(300, 0, 0)) == 0.0f);
+        // Only those 4 values changed
+        Bytes before = handle_bytes(h), after = a.bytes();
+        size_t changed_words = 0;
+        for (size_t i = 0; i < before.size(); i += 4)
+            changed_words += std::memcmp(&before[i], &after[i], 4) != 0;
+        CHECK(changed_words == 4);
+        // Idempotent
+        CHECK(nio::sanitize_values("nans", a.data(), a.size).total() == 0);
+    }
+    SUBCASE("negatives: clamped to 0, or kept (then -Inf -> the lowest finite value)") {
+        const Handle h = one_value_grid(2, openvdb::Coord(-300, 5, -5), -inf);
+        Aligned a(h.size()), k(h.size());
+        std::memcpy(a.data(), h.data(), h.size());
+        std::memcpy(k.data(), h.data(), h.size());
+        const Handle t = tile_grid();
+        Aligned ta(t.size());
+        std::memcpy(ta.data(), t.data(), t.size());
+        const auto rt = nio::sanitize_values("tiles", ta.data(), ta.size);
+        CHECK(rt.negative == 2);
+        const auto it = nio::validate_float_grid("tiles", ta.data(), ta.size);
+        CHECK(it.value_min == 0.0f);
+        CHECK(it.value_max == 100.0f);
+        CHECK(nio::scan_values("tiles", ta.data(), ta.size).negative_count == 0);
+
+        nio::SanitizeOptions keep;
+        keep.clamp_negative = false;
+        Aligned tk(t.size());
+        std::memcpy(tk.data(), t.data(), t.size());
+        CHECK(nio::sanitize_values("tiles", tk.data(), tk.size, keep).total() == 0);
+        CHECK(tk.bytes() == handle_bytes(t));
+
+        const auto r = nio::sanitize_values("neg", k.data(), k.size, keep);
+        CHECK(r.neginf == 1);
+        const auto *g = reinterpret_cast<const nanovdb::FloatGrid *>(k.data());
+        CHECK(g->getAccessor().getValue(nanovdb::Coord(-300, 5, -5)) == 0.0f); // lowest finite: 0
+        CHECK(nio::sanitize_values("neg", a.data(), a.size).neginf == 1);
+        CHECK(reinterpret_cast<const nanovdb::FloatGrid *>(a.data())
+                  ->getAccessor().getValue(nanovdb::Coord(-300, 5, -5)) == 0.0f);
+    }
+    SUBCASE("only invalid values: +Inf -> 0") {
+        nanovdb::GridBuilder<float> builder(std::numeric_limits<float>::quiet_NaN(),
+                                            nanovdb::GridClass::FogVolume);
+        builder.setStats(nanovdb::StatsMode::Disable);
+        auto acc = builder.getAccessor();
+        for (int i = 0; i < 8; ++i)
+            for (int j = 0; j < 8; ++j)
+                for (int k = 0; k < 8; ++k) acc.setValue(nanovdb::Coord(i, j, k), inf);
+        const Handle h = builder.getHandle(1.0, nanovdb::Vec3d(0), "all_inf");
+        Aligned a(h.size());
+        std::memcpy(a.data(), h.data(), h.size());
+        nio::sanitize_values("allinf", a.data(), a.size);
+        const auto info = nio::validate_float_grid("allinf", a.data(), a.size);
+        CHECK(info.value_min == 0.0f);
+        CHECK(info.value_max == 0.0f);
+    }
+}
+
+// =====================================================================================
+TEST_CASE("validate_float_grid: node arrays must not overlap; children at the right level") {
+    const Handle sphere = fog_sphere();
+    const auto &grid = *sphere.grid<float>();
+    const auto &tree = grid.tree();
+    const Bytes good = handle_bytes(sphere);
+    const std::string p = "overlap.nvdb";
+    const uint64_t tree_off = 672;
+    const uint64_t root_off = offset_in(grid, &tree.root());
+    const uint64_t upper0 = offset_in(grid, tree.getFirstNode<2>());
+    const uint64_t lower0 = offset_in(grid, tree.getFirstNode<1>());
+    auto validate = [&](const Bytes &b) { return nio::validate_float_grid(p, b.data(), b.size()); };
+
+    SUBCASE("the leaf array overlapping the root") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 0, root_off - tree_off);
+        CHECK_IO_ERROR(validate(b), p, "leaf node array", "overlaps the root node");
+    }
+    SUBCASE("the lower array overlapping the upper array") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 8, upper0 - tree_off + 32);
+        CHECK_IO_ERROR(validate(b), p, "lower node array", "overlaps the upper node array");
+    }
+    SUBCASE("a node array inside the grid header") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 16, 0); // upper array at the tree itself
+        CHECK_IO_ERROR(validate(b), p, "upper node array", "overlaps the grid and tree header");
+    }
+    SUBCASE("a root table long enough to run into the upper array") {
+        Bytes b = good;
+        const uint32_t tiles = uint32_t((upper0 - root_off - 64) / 32) + 1;
+        poke<uint32_t>(b, root_off + 24, tiles);
+        CHECK_IO_ERROR(validate(b), p, "upper node array", "overlaps the root node and its tile table");
+    }
+    SUBCASE("child offsets at the parent itself, backwards, or at the wrong level") {
+        const auto *upper = tree.getFirstNode<2>();
+        uint32_t n = 0;
+        while (n < 32768 && !upper->childMask().isOn(n)) ++n;
+        REQUIRE(n < 32768);
+        const uint64_t entry = upper0 + 8256 + 8 * n;
+        Bytes b = good;
+        poke<int64_t>(b, entry, 0); // the upper node itself
+        CHECK_IO_ERROR(validate(b), p, "upper node 0", "outside the lower node array");
+        poke<int64_t>(b, entry, int64_t(root_off) - int64_t(upper0)); // backwards, at the root
+        CHECK_IO_ERROR(validate(b), p, "upper node 0", "outside the lower node array");
+        // A root tile pointing at a lower node (one level too deep)
+        uint32_t t = 0;
+        const auto &root = tree.root();
+        while (!root.data()->tile(t)->isChild()) ++t;
+        Bytes c = good;
+        poke<int64_t>(c, offset_in(grid, root.data()->tile(t)) + 8, int64_t(lower0) - int64_t(root_off));
+        CHECK_IO_ERROR(validate(c), p, "root tile", "outside the upper node array");
+    }
+    SUBCASE("every file of shared/data and every NanoVDB-made grid still validates") {
+        for (const Handle *h : { &sphere }) CHECK_NOTHROW(validate_handle(*h, "ok"));
+        const Handle t = tile_grid(), e = empty_grid(), l = ls_torus();
+        CHECK_NOTHROW(validate_handle(t, "t"));
+        CHECK_NOTHROW(validate_handle(e, "e"));
+        CHECK_NOTHROW(validate_handle(l, "l"));
+    }
+}
+
+// =====================================================================================
+// A buffer that passed validation but holds garbage (mutated tile keys, masks,
+// table values, counts...) never makes a lookup leave it. The grid sits at the
+// end of a mapping followed by 16 GiB + a page of PROT_NONE address space, all
+// that a 32-bit word address can reach: any read past the end faults. Each
+// returned address is also checked against the buffer size.
+// =====================================================================================
+
+namespace {
+
+struct Guarded {
+    uint8_t *base = nullptr, *data = nullptr;
+    size_t total = 0;
+    explicit Guarded(uint64_t bytes) {
+        const size_t page = size_t(sysconf(_SC_PAGESIZE));
+        const size_t rounded = size_t((bytes + 31) / 32 * 32);
+        const size_t head = (rounded + page - 1) / page * page;
+        total = head + (size_t(1) << 34) + page;
+        void *p = mmap(nullptr, total, PROT_NONE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+        REQUIRE(p != MAP_FAILED);
+        base = static_cast<uint8_t *>(p);
+        REQUIRE(mprotect(base, head, PROT_READ | PROT_WRITE) == 0);
+        data = base + head - rounded;
+    }
+    ~Guarded() { munmap(base, total); }
+};
+
+} // namespace
+
+TEST_CASE("validated but garbage buffers: lookups never leave the buffer") {
+    namespace ndr = nanovdb_drjit;
+    const Handle grids[] = { fog_sphere(), tile_grid(), nan_inf_grid() };
+    std::mt19937_64 rng(5);
+    uint64_t valid = 0, lookups = 0;
+    for (const Handle &h : grids) {
+        const auto &grid = *h.grid<float>();
+        const uint64_t size = h.size();
+        Guarded g(size);
+        std::memcpy(g.data, h.data(), size);
+        const uint64_t words = (size + 3) / 4;
+        const uint64_t tree_end = 736;
+        for (int m = 0; m < 1500; ++m) {
+            // Mutate a few bytes anywhere past the grid header (tree header
+            // included); remember them to restore afterwards.
+            std::vector<std::pair<uint64_t, uint8_t>> saved;
+            const int k = 1 + int(rng() % 8);
+            for (int i = 0; i < k; ++i) {
+                uint64_t off = 672 + rng() % (size - 672);
+                if (rng() % 4 == 0) off = 672 + rng() % (tree_end - 672 + 600); // header, root, tiles
+                saved.push_back({ off, g.data[off] });
+                g.data[off] = uint8_t(rng() % 3 == 0 ? g.data[off] ^ (1u << (rng() % 8)) : rng());
+            }
+            nio::FloatGridInfo info;
+            bool ok = true;
+            try {
+                info = nio::validate_float_grid("mutant", g.data, size);
+            } catch (const nio::Error &) {
+                ok = false;
+            }
+            if (ok) {
+                ++valid;
+                const uint32_t *buf = reinterpret_cast<const uint32_t *>(g.data);
+                ndr::RootHandle<uint32_t> root{ info.root_word };
+                for (int q = 0; q < 64; ++q) {
+                    int32_t c[3];
+                    for (int a = 0; a < 3; ++a) {
+                        const uint64_t r = rng();
+                        // near the bbox minimum (INT32_MAX for an empty bbox: wrap)
+                        c[a] = (r & 1) ? int32_t(r >> 32)
+                                       : int32_t(uint32_t(grid.indexBBox().min()[a]) +
+                                                 uint32_t((r >> 8) % 300) - 100u);
+                        if (c[a] == INT32_MAX) c[a] = 0;
+                    }
+                    ndr::Coord<uint32_t> ijk(c[0], c[1], c[2]);
+                    const uint32_t a = ndr::root_get_value_address(buf, root, ijk, true);
+                    const auto st = ndr::root_get_stencil_addresses(buf, root, ijk, true);
+                    bool inside = a < words;
+                    for (int s = 0; s < 8; ++s) inside &= st[s] < words;
+                    if (!inside) {
+                        INFO("mutant " << m << " ijk " << c[0] << " " << c[1] << " " << c[2]);
+                        CHECK(inside);
+                    }
+                    ++lookups;
+                }
+                (void) nio::scan_values("mutant", g.data, size);
+            }
+            for (auto it = saved.rbegin(); it != saved.rend(); ++it) g.data[it->first] = it->second;
+        }
+    }
+    MESSAGE(valid, " of 4500 mutated buffers validated; ", lookups,
+            " lookups (1 + 8 addresses each) stayed inside");
+    CHECK(valid > 500);
 }

@@ -283,8 +283,11 @@ std::vector<uint64_t> stencil_pnanovdb(const TestGrid &g) {
     std::vector<uint64_t> out(8 * g.coords.size());
     for (size_t i = 0; i < g.coords.size(); ++i)
         for (int c = 0; c < 8; ++c) {
-            pnanovdb_coord_t ijk = { g.coords[i][0] + (c & 1), g.coords[i][1] + ((c >> 1) & 1),
-                                     g.coords[i][2] + ((c >> 2) & 1) };
+            // + 1 wraps at INT32_MAX as the translation's int32 lanes do;
+            // written in uint32 so that it is defined behaviour (UBSan)
+            auto plus = [](int32_t v, int b) { return int32_t(uint32_t(v) + uint32_t(b)); };
+            pnanovdb_coord_t ijk = { plus(g.coords[i][0], c & 1), plus(g.coords[i][1], (c >> 1) & 1),
+                                     plus(g.coords[i][2], (c >> 2) & 1) };
             out[8 * i + c] = pnanovdb_root_get_value_address(PNANOVDB_GRID_TYPE_FLOAT, buf,
                                                              root, &ijk).byte_offset;
         }

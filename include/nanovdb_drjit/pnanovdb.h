@@ -139,6 +139,18 @@ template <typename UInt32> struct LeafHandle     { UInt32 address; };
 template <typename UInt32>
 using Coord = dr::Array<dr::int32_array_t<UInt32>, 3>;
 
+/// ijk + (dx, dy, dz) with int32 wrap-around on every backend (JIT integer
+/// arithmetic wraps; plain C++ int32 overflow would be undefined behaviour)
+template <typename UInt32>
+DRJIT_INLINE Coord<UInt32> coord_add(const Coord<UInt32> &ijk, uint32_t dx, uint32_t dy,
+                                     uint32_t dz) {
+    using Int32 = dr::int32_array_t<UInt32>;
+    auto add = [](const Int32 &v, uint32_t d) {
+        return dr::reinterpret_array<Int32>(UInt32(dr::reinterpret_array<UInt32>(v) + d));
+    };
+    return { add(ijk.x(), dx), add(ijk.y(), dy), add(ijk.z(), dz) };
+}
+
 /// A value address together with its level (see LEVEL_*)
 template <typename UInt32> struct AddressAndLevel {
     UInt32 address;
@@ -663,9 +675,7 @@ dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &r
     Mask far[8], any_far = false;
     for (uint32_t corner = 0; corner < 8; ++corner) {
         uint32_t bit[3] = { corner & 1u, (corner >> 1) & 1u, (corner >> 2) & 1u };
-        Coord<UInt32> ijk(ijk0.x() + Int32((int32_t) bit[0]),
-                          ijk0.y() + Int32((int32_t) bit[1]),
-                          ijk0.z() + Int32((int32_t) bit[2]));
+        Coord<UInt32> ijk = coord_add<UInt32>(ijk0, bit[0], bit[1], bit[2]);
         Mask in_leaf = has_leaf, in_lower = active;
         for (int k = 0; k < 3; ++k) {
             if (bit[k]) {
@@ -695,9 +705,8 @@ dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &r
                                           const dr::Array<Mask, 8> &far_) {
         dr::Array<UInt32, 8> out = addresses;
         for (uint32_t corner = 1; corner < 8; ++corner) {
-            Coord<UInt32> ijk(ijk0.x() + Int32((int32_t) (corner & 1u)),
-                              ijk0.y() + Int32((int32_t) ((corner >> 1) & 1u)),
-                              ijk0.z() + Int32((int32_t) ((corner >> 2) & 1u)));
+            Coord<UInt32> ijk =
+                coord_add<UInt32>(ijk0, corner & 1u, (corner >> 1) & 1u, (corner >> 2) & 1u);
             out[corner] = dr::select(
                 far_[corner],
                 root_get_value_address<GridType>(buf, root, ijk, far_[corner]),

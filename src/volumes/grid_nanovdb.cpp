@@ -282,23 +282,23 @@ private:
             // Same arithmetic as Dr.Jit's texture (gridvolume), so both plugins
             // pick the same voxels and weights.
             if (m_nearest) {
-                base = dr::floor2int<Vector3i>(p * m_dims);
-                return value_at(base + m_min, active);
+                base = index_floor(p * m_dims);
+                return value_at(index_add(base, m_min), active);
             }
             rel = dr::fmadd(p, m_dims, -.5f);
         } else {
             Point4f p = m_index_from_world * Point4f(it.p.x(), it.p.y(), it.p.z(), 1.f);
             rel = Vector3f(p.x(), p.y(), p.z());
             if (m_nearest) {
-                base = dr::floor2int<Vector3i>(rel + .5f);
-                return value_at(base + m_min, active);
+                base = index_floor(rel + .5f);
+                return value_at(index_add(base, m_min), active);
             }
         }
 
-        base = dr::floor2int<Vector3i>(rel);
+        base = index_floor(rel);
         Vector3f w1 = rel - Vector3f(base),
                  w0 = 1.f - w1;
-        Vector3i ijk0 = base + m_min;
+        Vector3i ijk0 = index_add(base, m_min);
 
         // The 8 corners in one traversal (see root_get_stencil_addresses),
         // summed in the order and with the weights of Dr.Jit's texture
@@ -403,6 +403,21 @@ private:
         if (m_compact_offsets)
             return with_root(ndr::CompactOffsets<std::decay_t<decltype(buffer())>>{ buffer() });
         return with_root(buffer());
+    }
+
+    /// floor() to int32 for positions relative to the box minimum. Points
+    /// absurdly far outside the volume are clamped first (a float beyond the
+    /// int32 range has no int32 floor); they read the background either way.
+    static Vector3i index_floor(const Vector3f &rel) {
+        constexpr float limit = 2147483520.f; // largest float below 2^31
+        return dr::floor2int<Vector3i>(dr::clip(rel, -limit, limit));
+    }
+
+    /// a + b with int32 wrap-around on every backend (the VDB index space
+    /// wraps as PNanoVDB's does; plain C++ int32 overflow is undefined)
+    static Vector3i index_add(const Vector3i &a, const Vector3i &b) {
+        return dr::reinterpret_array<Vector3i>(dr::reinterpret_array<Vector3u>(a) +
+                                               dr::reinterpret_array<Vector3u>(b));
     }
 
     /// The buffer as the translation reads it: a JIT array or a host pointer
