@@ -656,7 +656,6 @@ dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &r
                                                 const Coord<UInt32> &ijk0,
                                                 const dr::mask_t<UInt32> &active) {
     using Mask = dr::mask_t<UInt32>;
-    using Int32 = dr::int32_array_t<UInt32>;
 
     LowerOrValue<UInt32> base = root_get_lower<GridType>(buf, root, ijk0, active);
     LowerHandle<UInt32> lower{ base.lower };
