@@ -100,6 +100,54 @@ def make_grid(tmp_path_factory):
     return GridFactory(tmp_path_factory.mktemp("grids"))
 
 
+def load_nvdb(filename, **kwargs):
+    return mi.load_dict({"type": "nanovdbvolume", "filename": filename, **kwargs})
+
+
+def load_dense(filename, **kwargs):
+    return mi.load_dict({"type": "gridvolume", "filename": filename, **kwargs})
+
+
+def eval_points(volume, points):
+    """eval_1 at an (N, 3) array of local points; returns a numpy array."""
+    import numpy as np
+    points = np.asarray(points, dtype=np.float32)
+    if dr.is_jit_v(mi.Float):
+        it = dr.zeros(mi.Interaction3f, len(points))
+        it.p = mi.Point3f(points[:, 0], points[:, 1], points[:, 2])
+        return np.array(volume.eval_1(it))
+    out = np.empty(len(points), dtype=np.float32)
+    it = dr.zeros(mi.Interaction3f)
+    for i, p in enumerate(points):
+        it.p = mi.ScalarPoint3f(*map(float, p))
+        out[i] = volume.eval_1(it)
+    return out
+
+
+def assert_renders_match(a, b, filter_type):
+    """nanovdbvolume (a) vs gridvolume (b) renders of the same scene and seed.
+
+    nearest: the same voxels and values, so the same image up to float
+    summation order. trilinear: the same 8 voxels and weights up to rounding,
+    but where values reach max() gridvolume's result overshoots its own
+    majorant by up to 3 ulps (weights rounded to a sum above 1) while
+    nanovdbvolume clamps to max(); the overshoot makes the null density
+    slightly negative, which changes a few free-flight decisions and sends
+    those paths elsewhere (and in the outer half voxel a VDB blends towards
+    the background where gridvolume clamps). So trilinear is compared
+    statistically. Measured at 24x24, 4 spp: 95 % (fog sphere, a plateau of
+    1.0) and 99.5 % (cloud) of the pixel channels identical, means within 0.1 %.
+    """
+    import numpy as np
+    assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
+    if filter_type == "nearest":
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-4)
+    else:
+        close = np.isclose(a, b, rtol=1e-4, atol=1e-4)
+        assert close.mean() > 0.85, f"{(~close).sum()} pixel channels differ"
+        assert abs(a.mean() - b.mean()) < 0.01 * b.mean()
+
+
 def read_vol(path):
     """Reads a Mitsuba .vol (version 3, float32, 1 channel): (res, bbox, list)."""
     data = Path(path).read_bytes()

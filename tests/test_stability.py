@@ -41,7 +41,7 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 
-from conftest import BUILD, read_vol
+from conftest import BUILD, eval_points, load_dense, load_nvdb, read_vol
 
 MAKE = BUILD / "bin" / "nvdb_make_stability_grid"
 BIG = BUILD / "bin" / "nvdb_big_grid"
@@ -64,28 +64,6 @@ def make(tmp_path, name, *args, dense=True):
     summary = {out[i]: int(out[i + 1]) for i in range(7, len(out) - 1, 2)}
     summary["bbox"] = [int(v) for v in out[1:7]]
     return str(nvdb), (str(vol) if dense else None), summary
-
-
-def load_nvdb(filename, **kwargs):
-    return mi.load_dict({"type": "nanovdbvolume", "filename": filename, **kwargs})
-
-
-def load_dense(filename, **kwargs):
-    return mi.load_dict({"type": "gridvolume", "filename": filename, **kwargs})
-
-
-def eval_points(volume, points):
-    points = np.asarray(points, dtype=np.float32)
-    if dr.is_jit_v(mi.Float):
-        it = dr.zeros(mi.Interaction3f, len(points))
-        it.p = mi.Point3f(points[:, 0], points[:, 1], points[:, 2])
-        return np.array(volume.eval_1(it))
-    out = np.empty(len(points), dtype=np.float32)
-    it = dr.zeros(mi.Interaction3f)
-    for i, p in enumerate(points):
-        it.p = mi.ScalarPoint3f(*map(float, p))
-        out[i] = volume.eval_1(it)
-    return out
 
 
 def n_points(jit, scalar):
