@@ -27,7 +27,11 @@ LARGE_VOXELS = 300 ** 3
 TARGET_LARGE, TARGET_SMALL = 1.00, 1.10
 TARGET_MEM = 1.01
 TARGET_MEM_SAVING = 10.0
-SPARSE_CASES = ("sphere_fog", "cloud")
+# The "sphere fog and noisy cloud" memory target: at the small
+# generated sizes (100^3, 160^3 boxes) they are nearly dense -- a NanoVDB leaf
+# stores 4.19 bytes per voxel, so only empty space can be saved -- so the
+# large sparse forms of both are target cases too.
+SPARSE_CASES = ("sphere_fog", "cloud", "sphere_fog_256", "cloudfield_400")
 
 
 def mib(b):
