@@ -8,7 +8,9 @@
 #include <nanovdb_drjit/pnanovdb.h>
 
 #include <cstdlib>
+#include <cstring>
 #include <memory>
+#include <vector>
 
 NAMESPACE_BEGIN(mitsuba)
 
@@ -382,7 +384,7 @@ private:
             m_block_dims[k] = dr::opaque<Int32>(index.block_dims[k]);
         }
         if constexpr (dr::is_jit_v<Float>)
-            m_root_table_host = {};  // the JIT array holds it now
+            std::vector<uint32_t>().swap(m_root_table_host); // the JIT array holds it now
     }
 
     /// Calls fn(buffer, root) with the reader chosen by prepare_readers()
