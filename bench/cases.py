@@ -33,6 +33,8 @@ GENERATED = {
 DEFAULT_CASES = ["constant_300", "random_300", "sphere_fog", "cloud", "sphere_fog_256",
                  "cloudfield_400"]
 FULL_CASES = DEFAULT_CASES + ["constant_934", "random_934"]
+# On a GPU: the sparse and the dense extremes, the small cloud (fixed costs)
+GPU_CASES = ["constant_300", "cloud", "sphere_fog_256", "cloudfield_400"]
 
 
 class Case:

@@ -3,6 +3,7 @@
     python3 bench/run.py                 # default run (~10 min on 2 cores) -> bench/results/
     python3 bench/run.py --full          # + the 934^3 cubes, larger images, more spp
     python3 bench/run.py --fast          # harness check (< 60 s): one tiny case -> bench/data/fast_results/
+    python3 bench/run.py --gpu           # cuda_ad_rgb on a GPU -> bench/results/cuda/
     python3 bench/run.py --cases cloud sphere_fog --variants llvm_ad_rgb
     python3 bench/run.py --cases none --vdb smoke.vdb --nvdb other.nvdb:density
 
@@ -50,6 +51,13 @@ MODES = {
                     out=os.path.join(HERE, "results")),
     # Full: the scalar variant renders fewer spp (8, sweep to 16) at the same
     # image size, so that it shares the references with llvm_ad_rgb.
+    # GPU: cuda_ad_rgb alone, larger images (a GPU needs >= 10^6 paths per
+    # launch to fill), references on the GPU too.
+    "gpu": dict(cases=cases_mod.GPU_CASES, variants=["cuda_ad_rgb"], res=128, spp=64, runs=5,
+                sweep=[4, 16, 64, 256], ref_spp=1024, ref_passes=4, lookups=1 << 24,
+                scalar_lookups=0, scalar_res=0, scalar_spp=0, scalar_sweep=[], lookup_runs=5,
+                sweep_repeats=1, ref_variant="cuda_ad_rgb",
+                out=os.path.join(HERE, "results", "cuda")),
     "full": dict(cases=cases_mod.FULL_CASES, variants=["scalar_rgb", "llvm_ad_rgb"], res=48,
                  spp=16, runs=5, sweep=[1, 2, 4, 8, 16, 32, 64], ref_spp=512, ref_passes=4,
                  lookups=1 << 22, scalar_lookups=1 << 14, scalar_res=48, scalar_spp=8,
@@ -159,6 +167,7 @@ def main():
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument("--full", action="store_true", help="all cases incl. 934^3, larger images")
     mode.add_argument("--fast", action="store_true", help="harness check: one tiny case, < 60 s")
+    mode.add_argument("--gpu", action="store_true", help="cuda_ad_rgb, GPU-sized images")
     ap.add_argument("--cases", nargs="+", help="generated cases (%s; 'none' for only --vdb/--nvdb)"
                     % ", ".join(cases_mod.GENERATED))
     ap.add_argument("--vdb", nargs="+", default=[], metavar="FILE[:GRID]",
@@ -181,6 +190,8 @@ def main():
                     help="timed renders per sweep point (the minimum is kept)")
     ap.add_argument("--ref-spp", type=int, help="spp of the converged references")
     ap.add_argument("--ref-passes", type=int, help="independent passes of a reference")
+    ap.add_argument("--ref-variant", help="variant of the references (default llvm_ad_rgb; "
+                    "gpu: cuda_ad_rgb)")
     ap.add_argument("--lookups", type=int, help="random eval_1 points (JIT variants)")
     ap.add_argument("--scalar-lookups", type=int, help="random eval_1 calls (scalar)")
     ap.add_argument("--out", help="results directory (default bench/results/, "
@@ -197,7 +208,7 @@ def main():
     a = ap.parse_args()
     if a.report_only:
         return report_only(a)
-    a.mode = "full" if a.full else "fast" if a.fast else "default"
+    a.mode = "full" if a.full else "fast" if a.fast else "gpu" if a.gpu else "default"
     for k, v in MODES[a.mode].items():
         if getattr(a, k, None) is None:
             setattr(a, k, v)
@@ -208,7 +219,7 @@ def main():
     a.build = os.path.abspath(a.build)
     a.data = os.path.abspath(a.data)
     a.out = os.path.abspath(a.out)
-    a.ref_variant = "llvm_ad_rgb"
+    a.ref_variant = a.ref_variant or "llvm_ad_rgb"
     if not os.path.exists(os.path.join(a.build, "plugins", "nanovdbvolume.so")):
         sys.exit(f"{a.build}/plugins/nanovdbvolume.so not found: build the project first")
     t_start = time.perf_counter()
@@ -222,7 +233,7 @@ def main():
     if not has_gpu:
         notes.append("cuda_ad_rgb: no GPU, not measured.")
         a.variants = [v for v in a.variants if not v.startswith("cuda")]
-    elif a.mode != "fast" and not cuda_requested and "--variants" not in sys.argv:
+    elif a.mode not in ("fast", "gpu") and not cuda_requested and "--variants" not in sys.argv:
         a.variants.append("cuda_ad_rgb")
 
     log(f"== bench/run.py ({a.mode}): cases {a.cases + a.vdb + a.nvdb}, variants {a.variants}, "
@@ -345,7 +356,7 @@ def main():
 def report_only(args):
     import report
     out = os.path.abspath(args.out or MODES["full" if args.full else "fast" if args.fast
-                                              else "default"]["out"])
+                                              else "gpu" if args.gpu else "default"]["out"])
     saved = json.load(open(os.path.join(out, "results.json")))
     a = argparse.Namespace(**saved["settings"])
     a.out = out

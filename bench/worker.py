@@ -17,7 +17,9 @@ Memory of the volume is measured across mi.load_dict() of the volume alone:
   rounded up to powers of two, and memory merely adopted by Dr.Jit is not in it;
 - rss_held: resident set size after minus before (the process's own view);
 - peak_rss: the process's peak resident set size (ru_maxrss) after loading,
-  and its increase over the RSS before loading.
+  and its increase over the RSS before loading;
+- gpu_used (CUDA): device memory in use after minus before, as the driver
+  reports it (NVML, i.e. nvidia-smi; bench/gpu.py).
 """
 import json
 import os
@@ -65,12 +67,16 @@ def load_volume(mi, dr, spec):
     jit = dr.is_jit_v(mi.Float)
     backend = dr.backend_v(mi.Float) if jit else None
     mem = {}
+    cuda = jit and backend == dr.JitBackend.CUDA
     if jit:
         sync(dr)
         dr.flush_malloc_cache()
         dr.detail.malloc_clear_statistics()
         u0 = dr.detail.malloc_watermark(backend)
         s0 = jit_storage_bytes(dr)
+    if cuda:
+        import gpu
+        g0 = gpu.used_bytes()
     r0 = rss_bytes()
     t0 = time.perf_counter()
     vol = mi.load_dict(volume_dict(spec["plugin"], spec["volume"], spec["filter"],
@@ -90,6 +96,11 @@ def load_volume(mi, dr, spec):
         s1 = jit_storage_bytes(dr)
         mem["jit_storage"] = s1 - s0 if s0 is not None and s1 is not None else None
     mem["rss_held"] = rss_bytes() - r0
+    if cuda and g0 is not None:
+        # Device memory as the driver reports it (nvidia-smi's view): the
+        # only measure that sees gridvolume's CUDA texture arrays, which
+        # are not Dr.Jit variables. The driver maps memory in 2 MiB pages.
+        mem["gpu_used"] = gpu.used_bytes() - g0
     return vol, mem
 
 

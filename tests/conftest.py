@@ -20,7 +20,23 @@ import mitsuba as mi
 ROOT = Path(__file__).resolve().parent.parent
 BUILD = Path(os.environ.get("NVDB_BUILD_DIR", ROOT / "build")).resolve()
 MAKE_GRID = BUILD / "bin" / "nvdb_make_test_grid"
-SHARED_DATA = (ROOT.parent / "shared" / "data").resolve()
+# Real volumes from other tools, read in place: $NVDB_SHARED_DATA, by default
+# ../shared/data beside the repository. Tests that need them skip without it.
+SHARED_DATA = Path(os.environ.get("NVDB_SHARED_DATA") or ROOT.parent / "shared" / "data").resolve()
+# NVDB_TEST_VARIANTS=cuda_ad_rgb,cuda_ad_mono,...: the variants that the
+# variant-parametrized tests run on (the GPU kit sets it), instead of
+# scalar_rgb + llvm_ad_rgb (+ cuda_ad_rgb on a GPU) and every variant.
+TEST_VARIANTS = [v for v in os.environ.get("NVDB_TEST_VARIANTS", "").split(",") if v]
+
+
+def need_shared_data(*names):
+    """Skips the test unless the shared data folder (and the files) exist."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"no shared data folder at {SHARED_DATA} (set NVDB_SHARED_DATA)")
+    for n in names:
+        if not (SHARED_DATA / n).exists():
+            pytest.skip(f"{SHARED_DATA / n} is missing")
+    return SHARED_DATA
 
 
 def has_cuda():
@@ -30,11 +46,20 @@ def has_cuda():
         return False
 
 
+def has_llvm():
+    try:
+        return dr.has_backend(dr.JitBackend.LLVM)
+    except Exception:
+        return False
+
+
 def _setup_variant(name):
     if name not in mi.variants():
         pytest.skip(f"variant {name} is not part of this Mitsuba build")
     if name.startswith("cuda") and not has_cuda():
         pytest.skip(f"{name}: no CUDA device on this machine")
+    if name.startswith("llvm") and not has_llvm():
+        pytest.skip(f"{name}: Dr.Jit's LLVM backend is not available (libLLVM missing)")
     mi.set_variant(name)
     # Our plugin directory goes first: mitsuba looks up plugins/<name>.so
     mi.file_resolver().prepend(str(BUILD))
@@ -44,10 +69,14 @@ def pytest_generate_tests(metafunc):
     # "variants_all": every non-CUDA variant, plus the CUDA ones when a GPU exists
     if "variants_all" in metafunc.fixturenames:
         names = [v for v in mi.variants() if not v.startswith("cuda") or has_cuda()]
+        if TEST_VARIANTS:
+            names = [v for v in names if v in TEST_VARIANTS]
         metafunc.parametrize("variants_all", names, indirect=True)
-    # "variants_jit_and_scalar": the two variants the issue names, plus CUDA on a GPU
+    # "variants_rgb": scalar_rgb and llvm_ad_rgb, plus cuda_ad_rgb on a GPU
+    # (or NVDB_TEST_VARIANTS)
     if "variants_rgb" in metafunc.fixturenames:
-        names = ["scalar_rgb", "llvm_ad_rgb"] + (["cuda_ad_rgb"] if has_cuda() else [])
+        names = TEST_VARIANTS or (["scalar_rgb", "llvm_ad_rgb"] +
+                                  (["cuda_ad_rgb"] if has_cuda() else []))
         metafunc.parametrize("variants_rgb", names, indirect=True)
 
 
@@ -98,6 +127,23 @@ class GridFactory:
 @pytest.fixture(scope="session")
 def make_grid(tmp_path_factory):
     return GridFactory(tmp_path_factory.mktemp("grids"))
+
+
+def gpu_used_bytes():
+    """Device memory in use on GPU 0 (bench/gpu.py: NVML or nvidia-smi)."""
+    import sys
+    sys.path.insert(0, str(ROOT / "bench"))
+    import gpu
+    return gpu.used_bytes()
+
+
+def settle_gpu():
+    """Waits for pending kernels and returns Dr.Jit's cached blocks, so that
+    gpu_used_bytes() sees what live objects hold."""
+    import gc
+    gc.collect()
+    dr.sync_thread()
+    dr.flush_malloc_cache()
 
 
 def load_nvdb(filename, **kwargs):

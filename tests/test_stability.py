@@ -41,7 +41,8 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 
-from conftest import BUILD, eval_points, load_dense, load_nvdb, read_vol
+from conftest import (BUILD, eval_points, gpu_used_bytes, load_dense, load_nvdb, read_vol,
+                      settle_gpu)
 
 MAKE = BUILD / "bin" / "nvdb_make_stability_grid"
 BIG = BUILD / "bin" / "nvdb_big_grid"
@@ -497,17 +498,24 @@ def test20_beyond_4gib(variants_rgb, big_grid):
     # matches the analytic transmittance of the known values.
     path, size, first_past = big_grid
     llvm = mi.variant().startswith("llvm")
-    dr.sync_thread()
+    cuda = mi.variant().startswith("cuda")
+    settle_gpu() if cuda else dr.sync_thread()
     wm0 = dr.detail.malloc_watermark(dr.JitBackend.LLVM) if llvm else 0
+    g0 = gpu_used_bytes() if cuda else 0
     r0 = rss_bytes()
     vol = load_nvdb(path, filter_type="nearest", use_grid_transform=True)
     dr.sync_thread()
     held = rss_bytes() - r0
     wm = (dr.detail.malloc_watermark(dr.JitBackend.LLVM) - wm0) if llvm else 0
+    gpu = (gpu_used_bytes() - g0) if cuda else 0
     print(f"{mi.variant()}: grid {size / 2**30:.3f} GiB, RSS +{held / 2**30:.3f} GiB "
-          f"({held / size:.4f} x), LLVM watermark +{wm / 2**30:.3f} GiB")
+          f"({held / size:.4f} x), LLVM watermark +{wm / 2**30:.3f} GiB, "
+          f"GPU +{gpu / 2**30:.4f} GiB ({gpu / size:.4f} x)")
     assert held <= 1.01 * size
     assert wm <= 1.01 * size
+    if cuda:
+        # The device holds the grid once, at its size (+ the driver's 2 MiB pages)
+        assert 0.99 * size <= gpu <= 1.01 * size
 
     # Spot reads past 4 GiB: 300 leaves from the first one past the mark
     rng = np.random.default_rng(20)

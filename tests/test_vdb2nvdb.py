@@ -21,7 +21,7 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 
-from conftest import BUILD, SHARED_DATA, read_vol
+from conftest import BUILD, SHARED_DATA, need_shared_data, read_vol
 from conftest import assert_renders_match, eval_points, load_dense, load_nvdb
 from test_nanovdbvolume import random_points, render
 
@@ -228,7 +228,7 @@ def test06_level_set_becomes_fog(gen, tmp_path):
 
 def test07_keep_level_sets(tmp_path):
     # The icosahedron's background is 0.15 (README of shared/data)
-    src = SHARED_DATA / "openvdb_icosahedron_ls.vdb"
+    src = need_shared_data("openvdb_icosahedron_ls.vdb") / "openvdb_icosahedron_ls.vdb"
     out = tmp_path / "ls.nvdb"
     p = run(src, out, "--keep-level-sets", "--probe", "0,0,0", "--probe", "500,0,0", "--stats")
     assert "(float, level set)" in p.stdout and "fog" not in p.stdout
@@ -454,7 +454,7 @@ def test22_unknown_grid_lists_the_grids(gen, tmp_path):
 @pytest.mark.parametrize("name,kind", [("openvdb_sphere_points.vdb", "ptdataidx32"),
                                        ("houdini_velocity_vec3s.vdb", "vec3s")])
 def test23_no_convertible_grid(tmp_path, name, kind):
-    p = run(SHARED_DATA / name, tmp_path / "o.nvdb", rc=1)
+    p = run(need_shared_data(name) / name, tmp_path / "o.nvdb", rc=1)
     assert "no scalar float grid" in p.stderr and kind in p.stderr and name in p.stderr
     assert list(tmp_path.iterdir()) == []
 

@@ -4,6 +4,7 @@
 #include <mitsuba/core/transform.h>
 #include <mitsuba/render/volume.h>
 
+#include <nanovdb_drjit/backend_buffer.h>
 #include <nanovdb_drjit/io.h>
 #include <nanovdb_drjit/pnanovdb.h>
 
@@ -254,6 +255,7 @@ public:
             << "  background = " << m_background << "," << std::endl
             << "  max = " << m_max << "," << std::endl
             << "  bytes = " << m_buffer_bytes << "," << std::endl
+            << "  backend_bytes = " << m_backend_bytes << "," << std::endl
             << "  reader = " << (m_root_indexed ? "root index" : "root search")
             << (m_compact_offsets ? ", 32-bit child offsets" : ", 64-bit child offsets")
             << std::endl
@@ -488,17 +490,10 @@ private:
     }
 
     // =====================================================================
-    //  Loading: only the selected grid's bytes, into one allocation that the
-    //  backend owns. No host copy is kept (and none is made on LLVM).
+    //  Loading: only the selected grid's bytes, into one exact-size
+    //  allocation that the backend owns (include/nanovdb_drjit/
+    //  backend_buffer.h). No host copy is kept, and none is made on LLVM.
     // =====================================================================
-
-    /// Dr.Jit variable callback (called without Dr.Jit's lock held): when
-    /// the mapped grid's variable is freed, release the memory after all
-    /// previously launched kernels have finished.
-    static void release_mapped_buffer(uint32_t /* index */, int free, void *ptr) {
-        if (free)
-            jit_enqueue_host_func(JitBackend::LLVM, [](void *p) { std::free(p); }, ptr);
-    }
 
     static Buffer make_empty_buffer() {
         if constexpr (dr::is_jit_v<Float>)
@@ -507,55 +502,51 @@ private:
             return Buffer(nullptr, std::free);
     }
 
+    /// Read -> validate -> value policy -> reader set-up, into `words`
+    /// (a block of `alloc_bytes`, the grid's bytes zero-padded to 64)
+    nanovdb_drjit::io::FloatGridInfo decode(const nanovdb_drjit::io::GridEntry &entry,
+                                            uint32_t *words, size_t bytes,
+                                            size_t alloc_bytes) {
+        namespace io = nanovdb_drjit::io;
+        std::memset((uint8_t *) words + bytes, 0, alloc_bytes - bytes);
+        io::read_grid(m_filename, entry, words);
+        io::FloatGridInfo info = io::validate_float_grid(m_filename, words, bytes);
+        check_values(words, bytes, entry.name, info);
+        prepare_readers(words, bytes, info);
+        return info;
+    }
+
     nanovdb_drjit::io::FloatGridInfo load(const nanovdb_drjit::io::GridEntry &entry) {
         namespace io = nanovdb_drjit::io;
-        size_t bytes = (size_t) entry.grid_size, words = (bytes + 3) / 4,
-               alloc_bytes = ((bytes + 63) / 64) * 64;
+        namespace backend = nanovdb_drjit::backend;
+        size_t bytes = (size_t) entry.grid_size,
+               alloc_bytes = ((bytes + 63) / 64) * 64, words = alloc_bytes / 4;
         m_buffer_bytes = bytes;
 
-        if constexpr (dr::is_jit_v<Float> && dr::backend_v<Float> == JitBackend::LLVM) {
-            // LLVM kernels read host memory: decode straight into one
-            // exact-size allocation that Dr.Jit then reads in place. Not from
-            // jit_malloc(), which rounds every size up to a power of two (up
-            // to 2x the grid); Dr.Jit maps it and tells us when its variable
-            // dies, and the memory is released once every kernel launched
-            // before that has finished.
-            void *ptr = nullptr;
-            if (posix_memalign(&ptr, 64, alloc_bytes) != 0 || !ptr)
-                Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
-                      m_filename, bytes, entry.name);
-            io::FloatGridInfo info;
-            try {
-                std::memset((uint8_t *) ptr + bytes, 0, alloc_bytes - bytes);
-                io::read_grid(m_filename, entry, ptr);
-                info = io::validate_float_grid(m_filename, ptr, bytes);
-                check_values(ptr, bytes, entry.name, info);
-                prepare_readers((const uint32_t *) ptr, bytes, info);
-            } catch (...) {
-                std::free(ptr);
-                throw;
-            }
-            uint32_t index = jit_var_mem_map(JitBackend::LLVM, VarType::UInt32, ptr, words, 0);
-            jit_var_set_callback(index, release_mapped_buffer, ptr);
-            m_buffer = UInt32::steal(index);
-            return info;
+        // One host block: the final buffer on scalar and LLVM variants (LLVM
+        // kernels read host memory in place), the staging buffer on CUDA.
+        std::unique_ptr<uint32_t[], void (*)(void *)> host(nullptr, std::free);
+        void *ptr = nullptr;
+        if (posix_memalign(&ptr, 64, alloc_bytes) != 0 || !ptr)
+            Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
+                  m_filename, bytes, entry.name);
+        host.reset((uint32_t *) ptr);
+        io::FloatGridInfo info = decode(entry, host.get(), bytes, alloc_bytes);
+
+        if constexpr (!dr::is_jit_v<Float>) {
+            m_buffer = std::move(host);
+        } else if constexpr (dr::backend_v<Float> == JitBackend::LLVM) {
+            m_buffer = UInt32::steal(backend::map_host_words(host.release(), words));
         } else {
-            std::unique_ptr<uint32_t[], void (*)(void *)> host(
-                (uint32_t *) std::aligned_alloc(64, alloc_bytes), std::free);
-            if (!host)
-                Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
-                      m_filename, bytes, entry.name);
-            std::memset((uint8_t *) host.get() + bytes, 0, alloc_bytes - bytes);
-            io::read_grid(m_filename, entry, host.get());
-            io::FloatGridInfo info = io::validate_float_grid(m_filename, host.get(), bytes);
-            check_values(host.get(), bytes, entry.name, info);
-            prepare_readers(host.get(), bytes, info);
-            if constexpr (dr::is_jit_v<Float>)
-                m_buffer = dr::load<UInt32>(host.get(), words); // GPU copy; host freed here
-            else
-                m_buffer = std::move(host);
-            return info;
+            try {
+                m_buffer = UInt32::steal(backend::upload_cuda_words(host.get(), words));
+            } catch (const std::exception &e) {
+                Throw("nanovdbvolume: \"%s\": grid \"%s\" (%zu bytes): %s", m_filename,
+                      entry.name, bytes, e.what());
+            }
         }
+        m_backend_bytes = alloc_bytes;
+        return info;
     }
 
 private:
@@ -575,7 +566,8 @@ private:
     ScalarVector3i m_resolution;
     ScalarFloat m_max = 0.f;
     ScalarFloat m_background = 0.f;
-    size_t m_buffer_bytes = 0;
+    size_t m_buffer_bytes = 0;  // the grid's bytes
+    size_t m_backend_bytes = 0; // what the backend holds for it (padded to 64 B)
     bool m_nearest = false;
     bool m_use_grid_transform = false;
     bool m_clamp_invalid = false;

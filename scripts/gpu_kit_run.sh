@@ -1,0 +1,110 @@
+#!/usr/bin/env bash
+# Runs the CUDA suite from an offline GPU kit (made by scripts/gpu_kit_pack.sh)
+# on a machine with an NVIDIA GPU and no network: unpacks the kit, then runs
+#   1. the doctest suites (test_translation: the translation against
+#      PNanoVDB read for read on scalar, LLVM and CUDA; test_io: the loader),
+#   2. the pytest suite, its variant-parametrized tests on the CUDA variants
+#      (NVDB_TEST_VARIANTS, default cuda_ad_rgb,cuda_ad_mono,cuda_ad_spectral;
+#      the GPU memory tests of tests/test_cuda.py; the >4 GiB grid),
+#   3. the benchmarks: bench/run.py --gpu (nanovdbvolume vs gridvolume on
+#      cuda_ad_rgb) and bench/huge_sparse.py (a grid whose dense form does not
+#      fit on the GPU),
+# and writes logs and results to --out. Needs: Python 3 with numpy and pytest
+# (the version the kit was packed for), an NVIDIA driver.
+#
+# Usage: bash gpu-kit/run.sh [--out DIR] [--home DIR] [--steps "doctest pytest bench huge"]
+#                            [--bench-args "..."] [--huge-args "..."] [-- PYTEST ARGS...]
+set -uo pipefail
+KIT=$(cd "$(dirname "$0")" && pwd)
+OUT=$PWD/gpu-kit-results
+HOME_DIR=${NVDB_KIT_HOME:-/tmp/nvdb-gpu-kit}
+STEPS="doctest pytest bench huge"
+BENCH_ARGS="" HUGE_ARGS=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --out) OUT=$2; shift 2 ;;
+    --home) HOME_DIR=$2; shift 2 ;;
+    --steps) STEPS=$2; shift 2 ;;
+    --bench-args) BENCH_ARGS=$2; shift 2 ;;
+    --huge-args) HUGE_ARGS=$2; shift 2 ;;
+    --) shift; break ;;
+    *) echo "unknown argument: $1 (see the header of this script)" >&2; exit 2 ;;
+  esac
+done
+PYTEST_ARGS=("$@")
+PYTHON=${PYTHON:-python3}
+mkdir -p "$OUT" "$HOME_DIR"
+OUT=$(cd "$OUT" && pwd)
+
+# ---- Unpack (again only when the kit changed)
+stamp=$(cat "$KIT"/*.tar.xz | cksum | cut -d' ' -f1)
+if [ "$(cat "$HOME_DIR/.stamp" 2>/dev/null)" != "$stamp" ]; then
+  rm -rf "$HOME_DIR"/{python,build,src}
+  mkdir -p "$HOME_DIR/src"
+  for t in python build; do tar -C "$HOME_DIR" -xJf "$KIT/$t.tar.xz" & done
+  tar -C "$HOME_DIR/src" -xJf "$KIT/source.tar.xz" &
+  wait
+  echo "$stamp" > "$HOME_DIR/.stamp"
+fi
+H=$HOME_DIR
+export PYTHONPATH="$H/python${PYTHONPATH:+:$PYTHONPATH}"
+export LD_LIBRARY_PATH="$H/build/lib:$H/python/drjit:$H/python/mitsuba${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+export NVDB_BUILD_DIR="$H/build"
+export NVDB_SHARED_DATA="$H/build/shared_data"
+export NVDB_TEST_VARIANTS=${NVDB_TEST_VARIANTS:-cuda_ad_rgb,cuda_ad_mono,cuda_ad_spectral}
+export PYTHONUNBUFFERED=1
+NVDB_KIT_COMMIT="$(sed -n 's/^commit: //p' "$KIT/MANIFEST.txt") (GPU kit)"
+export NVDB_KIT_COMMIT
+
+declare -A RC
+step() {  # step NAME COMMAND...: runs it, logs to $OUT/NAME.log, records its exit code
+  local name=$1; shift
+  echo "== $name: $*"
+  local t0=$SECONDS
+  "$@" > "$OUT/$name.log" 2>&1
+  RC[$name]=$?
+  tail -n 25 "$OUT/$name.log"
+  echo "== $name: exit ${RC[$name]} ($((SECONDS - t0)) s)"
+}
+
+{
+  echo "kit: $(head -3 "$KIT/MANIFEST.txt" | tr '\n' ' ')"
+  nvidia-smi --query-gpu=name,memory.total,memory.used,driver_version --format=csv,noheader || true
+  uname -srm; ldd --version | head -1
+  "$PYTHON" - <<'PY'
+import sys, drjit as dr, mitsuba as mi
+print("python", sys.version.split()[0], "| mitsuba", mi.__version__, mi.__file__)
+print("drjit", dr.__version__, "| CUDA:", dr.has_backend(dr.JitBackend.CUDA),
+      "| LLVM:", dr.has_backend(dr.JitBackend.LLVM))
+PY
+  echo "NVDB_TEST_VARIANTS=$NVDB_TEST_VARIANTS"
+} 2>&1 | tee "$OUT/environment.txt"
+
+cd "$H/src"
+want() { case " $STEPS " in *" $1 "*) return 0 ;; *) return 1 ;; esac; }
+if want doctest; then
+  step doctest_translation "$H/build/bin/test_translation"
+  step doctest_io "$H/build/bin/test_io"
+fi
+if want pytest; then
+  step pytest "$PYTHON" -m pytest tests -p no:cacheprovider -rs --durations=15 \
+       --junitxml="$OUT/pytest.xml" "${PYTEST_ARGS[@]}"
+fi
+if want bench; then
+  # shellcheck disable=SC2086
+  step bench "$PYTHON" bench/run.py --gpu --build "$H/build" --data "$H/bench-data" \
+       --out "$OUT/bench" $BENCH_ARGS
+fi
+if want huge; then
+  # shellcheck disable=SC2086
+  step huge_sparse "$PYTHON" bench/huge_sparse.py --build "$H/build" --data "$H/bench-data" \
+       --out "$OUT/bench" $HUGE_ARGS
+fi
+
+echo "== summary" | tee "$OUT/summary.txt"
+fail=0
+for k in "${!RC[@]}"; do
+  echo "$k: exit ${RC[$k]}" | tee -a "$OUT/summary.txt"
+  [ "${RC[$k]}" = 0 ] || fail=1
+done
+exit $fail
