@@ -151,6 +151,12 @@ def load_nvdb(filename, **kwargs):
 
 
 def load_dense(filename, **kwargs):
+    # On CUDA, gridvolume samples through hardware textures by default, whose
+    # interpolation weights have 8 fractional bits (measured: trilinear off
+    # by up to 0.5 %, and 1 in 10^5 nearest lookups at a voxel face in the
+    # neighbouring voxel). The exact comparisons need its float arithmetic.
+    if mi.variant().startswith("cuda"):
+        kwargs.setdefault("accel", False)
     return mi.load_dict({"type": "gridvolume", "filename": filename, **kwargs})
 
 
