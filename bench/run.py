@@ -318,6 +318,11 @@ def main():
                                       "spp": a.ref_spp, "passes": a.ref_passes,
                                       "time_s": ref["time_s"], "cached": ref["cached"],
                                       "noise_rmse": float(np.sqrt(np.mean(ref["var_of_mean"])))})
+            # What is measured so far survives an interrupted run
+            # (--report-only writes the report from it)
+            save(a, case_list, results, errors, refs_info,
+                 notes + ["**partial run: interrupted before its end**"], runner.failures,
+                 started, time.perf_counter() - t_start, has_gpu)
             for res in sorted({r for (_, r) in ref_cache}):
                 ra, rb = ref_cache.get(("nanovdbvolume", res)), ref_cache.get(("gridvolume", res))
                 if filt == "trilinear" and ra is not None and rb is not None:
@@ -337,13 +342,8 @@ def main():
         notes.append(f"nanovdbvolume.so: built {so_mtime:%Y-%m-%d %H:%M:%S %Z}, "
                      f"{so_stat[0]:,} B, unchanged during the run.")
     import report
-    saved = {"settings": {k: v for k, v in vars(a).items()}, "argv": sys.argv[1:],
-             "cases": [c.row() for c in case_list], "results": results, "errors": errors,
-             "refs_info": refs_info, "notes": notes, "failures": runner.failures,
-             "started": started.isoformat(), "elapsed": elapsed, "has_gpu": has_gpu}
-    os.makedirs(a.out, exist_ok=True)
-    with open(os.path.join(a.out, "results.json"), "w") as f:
-        json.dump(saved, f, indent=1, default=str)
+    save(a, case_list, results, errors, refs_info, notes, runner.failures, started, elapsed,
+         has_gpu)
     report.write_all(a, case_list, results, errors, refs_info, notes, runner.failures,
                      started, elapsed, has_gpu)
     log(f"== done in {elapsed:.0f} s ({runner.n_workers} worker processes); results in {a.out}")
@@ -351,6 +351,17 @@ def main():
         log(f"== {len(runner.failures)} measurement(s) FAILED: "
             + ", ".join(t for t, _ in runner.failures))
         sys.exit(1)
+
+
+def save(a, case_list, results, errors, refs_info, notes, failures, started, elapsed, has_gpu):
+    saved = {"settings": {k: v for k, v in vars(a).items()}, "argv": sys.argv[1:],
+             "cases": [c.row() for c in case_list], "results": results, "errors": errors,
+             "refs_info": refs_info, "notes": notes, "failures": failures,
+             "started": started.isoformat(), "elapsed": elapsed, "has_gpu": has_gpu}
+    os.makedirs(a.out, exist_ok=True)
+    with open(os.path.join(a.out, "results.json.tmp"), "w") as f:
+        json.dump(saved, f, indent=1, default=str)
+    os.replace(os.path.join(a.out, "results.json.tmp"), os.path.join(a.out, "results.json"))
 
 
 def report_only(args):
