@@ -106,7 +106,9 @@ def main():
         out["dense_alloc"] = "succeeded (unexpected: the device holds the dense grid)"
         del dense
     except Exception as e:
-        out["dense_alloc"] = f"failed: {str(e).strip().splitlines()[-1][:300]}"
+        while e.__cause__ is not None:  # the reason is in the innermost exception
+            e = e.__cause__
+        out["dense_alloc"] = f"failed: {' '.join(str(e).split())[:300]}"
     dr.flush_malloc_cache()
     print(f"dense tensor of the box ({info['dense_bytes']:,} B): {out['dense_alloc']}", flush=True)
 
