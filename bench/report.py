@@ -1,5 +1,8 @@
 """CSV files, PNG plots and REPORT.md from the measurements of bench/run.py."""
+import argparse
 import csv
+import dataclasses
+import datetime
 import json
 import os
 import platform
@@ -375,71 +378,149 @@ def c_rows(rows, case, plugin, key):
 # ---------------------------------------------------------------------------
 # REPORT.md
 
+@dataclasses.dataclass
+class Run:
+    """What write_all writes about: one run's settings and measurements, as
+    bench/run.py has them after measuring or reads them back from
+    OUT/results.json (--report-only)."""
+    args: argparse.Namespace  # bench/run.py's settings (mode, out, res, spp, ...)
+    cases: list               # cases.Case (or cases.CaseRecord), in run order
+    results: list             # one dict per worker (measure mode)
+    errors: list              # one dict per sweep point
+    refs_info: list           # one dict per reference, + the trilinear "difference" rows
+    notes: list               # extra lines for the report's header
+    failures: list            # (tag, output) per failed measurement; write_all appends
+    #                           ("plots", note) when matplotlib is missing (not in fast mode)
+    started: datetime.datetime
+    elapsed: float            # seconds
+    has_gpu: bool
+
+
+@dataclasses.dataclass
+class Tables:
+    """The tables derived from a run's measurements (the rows of the CSV files)."""
+    times: list       # render time per case, variant, filter (both plugins)
+    memory: list      # memory per case, variant, plugin
+    lookups: list     # lookup throughput per case, variant, filter
+    equal_time: list  # error at equal time per case, variant, filter
+    targets: list     # the issue's targets, measured
+
+    @classmethod
+    def of(cls, run):
+        case_by_name = {c.name: c for c in run.cases}
+        times = time_rows(run.results)
+        memory = memory_rows(run.results, case_by_name)
+        return cls(times=times, memory=memory, lookups=lookup_rows(run.results),
+                   equal_time=equal_time_rows(run.errors),
+                   targets=target_rows(times, memory, case_by_name))
+
+
 def mark(ok):
     return "—" if ok is None else ("✓" if ok else "✗")
 
 
-def write_all(a, case_list, results, errors, refs_info, notes, failures, started, elapsed,
-              has_gpu):
-    out = a.out
+def write_all(run):
+    """Replaces OUT's CSV files, plots and REPORT.md with those of `run` (a Run)."""
+    out = run.args.out
+    clear_outputs(out)
+    case_names = [c.name for c in run.cases]
+    # The variant the summary and the targets are about
+    main_variant = "cuda_ad_rgb" if run.args.mode == "gpu" else "llvm_ad_rgb"
+    t = Tables.of(run)
+    write_csvs(out, run, t)
+    pngs, plot_note = make_plots(run, t, case_names, main_variant)
+    if not os.path.exists(PERF_LOG):
+        with open(PERF_LOG, "w") as f:
+            f.write(PERF_LOG_HEADER)
+    L = (header_section(run, plot_note)
+         + summary_section(t, main_variant)
+         + cases_section(run.cases)
+         + targets_section(t.targets, main_variant)
+         + render_time_section(t.times, pngs)
+         + memory_section(t.memory, case_names, pngs)
+         + error_time_section(t.equal_time, run.refs_info, pngs)
+         + lookups_section(t.lookups, pngs)
+         + references_section(run.refs_info)
+         + files_section(pngs)
+         + (cuda_section(out) if run.args.mode != "gpu" else [])
+         + perf_log_section())
+    with open(os.path.join(out, "REPORT.md"), "w") as f:
+        f.write("\n".join(L) + "\n")
+
+
+def clear_outputs(out):
     os.makedirs(out, exist_ok=True)
     for f in os.listdir(out):  # a run replaces the previous one's files
         if f.endswith((".png", ".csv")) or f == "REPORT.md":
             os.remove(os.path.join(out, f))
-    case_by_name = {c.name: c for c in case_list}
-    case_names = [c.name for c in case_list]
-    # The variant the summary and the targets are about
-    main_variant = "cuda_ad_rgb" if a.mode == "gpu" else "llvm_ad_rgb"
-    trows = time_rows(results)
-    mrows = memory_rows(results, case_by_name)
-    lrows = lookup_rows(results)
-    erows = equal_time_rows(errors)
-    tgt = target_rows(trows, mrows, case_by_name)
 
-    write_csv(os.path.join(out, "cases.csv"), [c.row() for c in case_list])
-    write_csv(os.path.join(out, "render_time.csv"), trows,
-              sorted({k for r in trows for k in r}, key=lambda k: list(trows[0]).index(k)
-                     if k in trows[0] else 99) if trows else None)
-    write_csv(os.path.join(out, "memory.csv"), mrows)
-    write_csv(os.path.join(out, "lookups.csv"), lrows)
-    write_csv(os.path.join(out, "error_sweep.csv"), errors)
-    write_csv(os.path.join(out, "error_equal_time.csv"), erows)
-    write_csv(os.path.join(out, "references.csv"), refs_info,
+
+def write_csvs(out, run, t):
+    write_csv(os.path.join(out, "cases.csv"), [c.row() for c in run.cases])
+    write_csv(os.path.join(out, "render_time.csv"), t.times,
+              sorted({k for r in t.times for k in r}, key=lambda k: list(t.times[0]).index(k)
+                     if k in t.times[0] else 99) if t.times else None)
+    write_csv(os.path.join(out, "memory.csv"), t.memory)
+    write_csv(os.path.join(out, "lookups.csv"), t.lookups)
+    write_csv(os.path.join(out, "error_sweep.csv"), run.errors)
+    write_csv(os.path.join(out, "error_equal_time.csv"), t.equal_time)
+    write_csv(os.path.join(out, "references.csv"), run.refs_info,
               ["case", "filter", "plugin", "res", "spp", "passes", "time_s", "cached",
                "noise_rmse", "rmse_between"])
-    write_csv(os.path.join(out, "targets.csv"), tgt)
+    write_csv(os.path.join(out, "targets.csv"), t.targets)
 
+
+def make_plots(run, t, case_names, main_variant):
+    """(PNG file names, None), or ([], a note for the report) without
+    matplotlib -- then a failure of the run, except in fast mode."""
     try:
-        pngs = plots(out, errors, trows, mrows, lrows, case_names, main_variant)
-        plot_note = None
+        return plots(run.args.out, run.errors, t.times, t.memory, t.lookups, case_names,
+                     main_variant), None
     except ImportError as e:
-        pngs = []
         plot_note = (f"matplotlib is not installed ({e}): no plots. "
                      "`pip install matplotlib==3.11.2` (scripts/install.sh pins it).")
         print("WARNING: " + plot_note, file=sys.stderr)
-        if a.mode != "fast":
-            failures.append(("plots", plot_note))
+        if run.args.mode != "fast":
+            run.failures.append(("plots", plot_note))
+        return [], plot_note
 
-    if not os.path.exists(PERF_LOG):
-        with open(PERF_LOG, "w") as f:
-            f.write(PERF_LOG_HEADER)
 
+def header_section(run, plot_note):
+    """Title, command, machine, software and settings, then notes and failures."""
+    a = run.args
     cpu, ncpu, mem, vers, commit = machine_info()
     L = []
     w = L.append
     w("# nanovdbvolume vs gridvolume: benchmark report\n")
     w(f"Generated by `{' '.join(['python3', 'bench/run.py'] + sys.argv[1:])}` "
-      f"({a.mode} mode) on {started:%Y-%m-%d %H:%M %Z}, in {elapsed / 60:.1f} min. "
+      f"({a.mode} mode) on {run.started:%Y-%m-%d %H:%M %Z}, in {run.elapsed / 60:.1f} min. "
       "Methodology and caveats: [bench/README.md](../README.md). Benchmarks are "
       "measurements: the ✓/✗ below are reported, not asserted.\n")
     w(f"- Machine: {cpu}, {ncpu} cores, {mem} RAM; {platform.platform()}.")
-    if has_gpu:
+    if run.has_gpu:
         import gpu
         w(f"- GPU: {gpu.device_name() or 'unknown (nvidia-smi not found)'}.")
     w(f"- Software: Python {platform.python_version()}, "
       + ", ".join(f"{k} {v}" for k, v in vers.items()) + ".")
     w(f"- Plugin: `build/plugins/nanovdbvolume.so` as built at the time of the run; "
       f"repository at {commit or 'unknown commit'}.")
+    L += settings_lines(run)
+    for n in run.notes:
+        w(f"- {n}")
+    if plot_note:
+        w(f"- {plot_note}")
+    if run.failures:
+        w(f"- **{len(run.failures)} measurement(s) failed:** "
+          + ", ".join(f"`{t}`" for t, _ in run.failures))
+    w("")
+    return L
+
+
+def settings_lines(run):
+    """The header's scene, settings, variants and machine load."""
+    a = run.args
+    L = []
+    w = L.append
     w(f"- Scene: the volume in the unit cube (null BSDF, `heterogeneous` medium, scale 40, "
       "albedo 0.9), `volpath` max_depth 64, constant sky + sun (as `scenes/cloud.xml`), "
       "a turntable of 8 sensors (35° fov, elevation 22°, distance 2.92). The same scene for "
@@ -449,45 +530,47 @@ def write_all(a, case_list, results, errors, refs_info, notes, failures, started
       f"sweep {a.scalar_sweep}. References: {getattr(a, 'ref_variant', 'llvm_ad_rgb')}, "
       f"{a.ref_spp} spp in "
       f"{a.ref_passes} passes.")
-    w(f"- Variants measured: {', '.join(sorted({r['variant'] for r in results})) or 'none'}. "
-      + ("GPU present." if has_gpu else "**cuda_ad_rgb: no GPU, not measured.**"))
-    loads = [r["loadavg_start"][0] for r in results]
+    w(f"- Variants measured: {', '.join(sorted({r['variant'] for r in run.results})) or 'none'}. "
+      + ("GPU present." if run.has_gpu else "**cuda_ad_rgb: no GPU, not measured.**"))
+    loads = [r["loadavg_start"][0] for r in run.results]
     if loads:
         w(f"- Machine load (1-min load average at each worker's start): min {min(loads):.2f}, "
           f"median {statistics.median(loads):.2f}, max {max(loads):.2f} "
           "(per measurement in the CSV files).")
-    for n in notes:
-        w(f"- {n}")
-    if plot_note:
-        w(f"- {plot_note}")
-    if failures:
-        w(f"- **{len(failures)} measurement(s) failed:** "
-          + ", ".join(f"`{t}`" for t, _ in failures))
-    w("")
+    return L
 
-    w("## Summary\n")
-    for v in sorted({t["variant"] for t in trows}):
+
+def summary_section(t, main_variant):
+    """Render time ratios per variant and filter; main_variant's memory and
+    error at equal time."""
+    L = ["## Summary\n"]
+    w = L.append
+    for v in sorted({r["variant"] for r in t.times}):
         for filt in ("trilinear", "nearest"):
-            rs = [(t["case"], t["ratio_median"]) for t in trows
-                  if t["variant"] == v and t["filter"] == filt and "ratio_median" in t]
+            rs = [(r["case"], r["ratio_median"]) for r in t.times
+                  if r["variant"] == v and r["filter"] == filt and "ratio_median" in r]
             if rs:
                 w(f"- {v}, {filt}: render time nano/grid at equal spp "
                   + ", ".join(f"{c} {r:.2f}" for c, r in rs) + ".")
-    for m in mrows:
+    for m in t.memory:
         if m["variant"] == main_variant and m["plugin"] == "nanovdbvolume" and m["backend_bytes"]:
-            g = next((x for x in mrows if x["case"] == m["case"] and x["variant"] == m["variant"]
-                      and x["plugin"] == "gridvolume"), None)
+            g = next((x for x in t.memory if x["case"] == m["case"]
+                      and x["variant"] == m["variant"] and x["plugin"] == "gridvolume"), None)
             w(f"- {m['case']}, {main_variant} memory: nano holds {m['backend_over_grid']:.4f} × the "
               f"grid's bytes" + (f"; gridvolume holds {g['backend_bytes'] / m['backend_bytes']:.2f}"
                                  " × what nano holds" if g and g["backend_bytes"] else "") + ".")
-    for e in erows:
+    for e in t.equal_time:
         if e["ratio"] is not None and e["variant"] == main_variant:
             w(f"- {e['case']}, {e['variant']}, {e['filter']}: at equal time "
               f"({e['t_s']:.2f} s) {e['lower']} has the lower RMSE "
               f"(nano/grid {e['ratio']:.2f}; cost ratio {e['cost_ratio']:.2f}).")
     w("")
+    return L
 
-    w("## Cases\n")
+
+def cases_section(case_list):
+    L = ["## Cases\n"]
+    w = L.append
     w("| case | grid | dense box | grid bytes | .nvdb file | dense bytes | grid / dense | "
       "border voxels all 0 |")
     w("|---|---|---|---:|---:|---:|---:|:-:|")
@@ -497,8 +580,12 @@ def write_all(a, case_list, results, errors, refs_info, notes, failures, started
           f"{c.grid_bytes / c.dense_bytes:.3f} | {'yes' if c.border_background else 'no'} |")
     w("")
     w("Descriptions: " + "; ".join(f"**{c.name}**: {c.description}" for c in case_list) + ".\n")
+    return L
 
-    w(f"## Targets ({main_variant})\n")
+
+def targets_section(tgt, main_variant):
+    L = [f"## Targets ({main_variant})\n"]
+    w = L.append
     w(f"Render time: `nanovdbvolume / gridvolume` of the warm medians at equal spp, ≤ "
       + (f"{TARGET_CUDA:.2f} on every case (CUDA). " if main_variant.startswith("cuda") else
          f"{TARGET_LARGE:.2f} on grids whose dense form has ≥ 300³ voxels (\"exceeds the caches\"), "
@@ -514,8 +601,12 @@ def write_all(a, case_list, results, errors, refs_info, notes, failures, started
     else:
         w(f"No {main_variant} measurements in this run.")
     w("")
+    return L
 
-    w("## Render time at equal spp\n")
+
+def render_time_section(trows, pngs):
+    L = ["## Render time at equal spp\n"]
+    w = L.append
     w("One turntable = the 8 sensors rendered one after the other (`mi.render(scene, "
       "sensor=i)`). Warm: median (min) of the warm runs. First: the first turntable in a fresh "
       "process with an empty Dr.Jit kernel cache; JIT: the compile time in it "
@@ -533,8 +624,12 @@ def write_all(a, case_list, results, errors, refs_info, notes, failures, started
     if "render_time_ratio.png" in pngs:
         w("\n![render time ratio](render_time_ratio.png)")
     w("")
+    return L
 
-    w("## Memory\n")
+
+def memory_section(mrows, case_names, pngs):
+    L = ["## Memory\n"]
+    w = L.append
     w("Measured around `mi.load_dict()` of the volume alone, in a fresh process per plugin. "
       "**backend**: the bytes the backend holds for the volume — on JIT variants the larger of "
       "Dr.Jit's variable storage (`dr.whos()`, exact sizes, includes buffers the plugin hands "
@@ -557,8 +652,13 @@ def write_all(a, case_list, results, errors, refs_info, notes, failures, started
     if "memory.png" in pngs:
         w("\n![memory](memory.png)")
     w("")
+    return L
 
-    w("## Error against run time\n")
+
+def error_time_section(erows, refs_info, pngs):
+    """Error at equal time, the trilinear references' difference, the plots."""
+    L = ["## Error against run time\n"]
+    w = L.append
     w("RMSE over the 8 sensors' pixels against a converged reference, minus the reference's "
       "own noise (estimated from its independent passes), and SSIM (luminance, 11×11 Gaussian "
       "window σ = 1.5), over the spp sweep; the time is that of the turntable at that spp (warm). "
@@ -582,22 +682,34 @@ def write_all(a, case_list, results, errors, refs_info, notes, failures, started
           f"**{fmt(e['ratio'])}** | {lower}{by} | {fmt(e['cost_ratio'])} | "
           f"{fmt(e['ssim_nano'], '.4f')} / {fmt(e['ssim_grid'], '.4f')} ({e['ssim_top_spp']}) |")
     w("")
-    diffs = [r for r in refs_info if r["plugin"] == "difference"]
-    if diffs:
-        w("Trilinear references of the two plugins compared (RMSE between them, and the RMSE "
-          "their noise alone would give): a difference well above the noise is the border "
-          "convention, i.e. a real difference of the images, not of the speed.\n")
-        w("| case | res | RMSE between refs | noise only |")
-        w("|---|---:|---:|---:|")
-        for d in diffs:
-            w(f"| {d['case']} | {d['res']} | {d['rmse_between']:.4g} | {d['noise_rmse']:.4g} |")
-        w("")
+    L += reference_difference_lines(refs_info)
     for p in pngs:
         if p.startswith("error_time_"):
             w(f"![{p[:-4]}]({p})")
     w("")
+    return L
 
-    w("## Lookup throughput\n")
+
+def reference_difference_lines(refs_info):
+    """The table of the two plugins' trilinear references compared (none
+    without "difference" rows)."""
+    diffs = [r for r in refs_info if r["plugin"] == "difference"]
+    if not diffs:
+        return []
+    L = ["Trilinear references of the two plugins compared (RMSE between them, and the RMSE "
+         "their noise alone would give): a difference well above the noise is the border "
+         "convention, i.e. a real difference of the images, not of the speed.\n",
+         "| case | res | RMSE between refs | noise only |",
+         "|---|---:|---:|---:|"]
+    for d in diffs:
+        L.append(f"| {d['case']} | {d['res']} | {d['rmse_between']:.4g} | {d['noise_rmse']:.4g} |")
+    L.append("")
+    return L
+
+
+def lookups_section(lrows, pngs):
+    L = ["## Lookup throughput\n"]
+    w = L.append
     w("Random points, uniform in the unit cube, `vol.eval_1(it)`; median of the warm runs. "
       "JIT variants: one vectorized call over all points (first call: with compilation). "
       "Scalar: one Python call per lookup, so the binding's overhead dominates both plugins.\n")
@@ -610,8 +722,12 @@ def write_all(a, case_list, results, errors, refs_info, notes, failures, started
     if "lookups.png" in pngs:
         w("\n![lookups](lookups.png)")
     w("")
+    return L
 
-    w("## References\n")
+
+def references_section(refs_info):
+    L = ["## References\n"]
+    w = L.append
     w("| case | filter | plugin | res | spp | time [s] | noise RMSE | cached |")
     w("|---|---|---|---:|---:|---:|---:|:-:|")
     for r in refs_info:
@@ -619,23 +735,23 @@ def write_all(a, case_list, results, errors, refs_info, notes, failures, started
             w(f"| {r['case']} | {r['filter']} | {r['plugin']} | {r['res']} | {r['spp']} | "
               f"{r['time_s']:.1f} | {r['noise_rmse']:.3g} | {'yes' if r['cached'] else 'no'} |")
     w("")
+    return L
 
-    w("## Files\n")
-    w("CSV: " + ", ".join(f"`{f}`" for f in ("cases.csv", "render_time.csv", "memory.csv",
-                                             "lookups.csv", "error_sweep.csv",
-                                             "error_equal_time.csv", "references.csv",
-                                             "targets.csv")) + ". Plots: "
-      + (", ".join(f"`{p}`" for p in pngs) or "none") + ".\n")
 
-    if a.mode != "gpu":
-        L.extend(cuda_section(out))
+def files_section(pngs):
+    return ["## Files\n",
+            "CSV: " + ", ".join(f"`{f}`" for f in ("cases.csv", "render_time.csv", "memory.csv",
+                                                   "lookups.csv", "error_sweep.csv",
+                                                   "error_equal_time.csv", "references.csv",
+                                                   "targets.csv")) + ". Plots: "
+            + (", ".join(f"`{p}`" for p in pngs) or "none") + ".\n"]
 
-    w("## Performance work\n")
-    w("The contents of `bench/PERF_LOG.md`, verbatim:\n")
-    w(open(PERF_LOG).read().rstrip("\n"))
-    w("")
-    with open(os.path.join(out, "REPORT.md"), "w") as f:
-        f.write("\n".join(L) + "\n")
+
+def perf_log_section():
+    return ["## Performance work\n",
+            "The contents of `bench/PERF_LOG.md`, verbatim:\n",
+            open(PERF_LOG).read().rstrip("\n"),
+            ""]
 
 
 # ---------------------------------------------------------------------------
@@ -661,42 +777,58 @@ def cuda_section(out):
                 "GPU, e.g. through the offline kit: `scripts/gpu_kit_pack.sh`, "
                 "`scripts/gpu_kit_run.sh`).\n"]
     saved = json.load(open(path))
+    return (_cuda_intro(cdir) + _cuda_tests(os.path.join(cdir, "logs")) + _cuda_table(saved)
+            + _cuda_extras(cdir))
+
+
+def _cuda_intro(cdir):
+    """The heading and the GPU, command and method of cuda/REPORT.md."""
+    gen = _first_line(os.path.join(cdir, "REPORT.md"), "Generated by")
+    device = _first_line(os.path.join(cdir, "REPORT.md"), "- GPU:")
+    device = device[2:] if device else "GPU: unknown."
+    command = gen.split(" (")[0].replace("Generated by ", "command: ") if gen else ""
+    return ["## CUDA (cuda_ad_rgb, measured on a GPU)\n",
+            f"{device} Full report: [cuda/REPORT.md](cuda/REPORT.md) ({command}; "
+            "through the offline GPU kit, `scripts/gpu_kit_run.sh`). Same scene and method as "
+            "above, at 128² × 8 sensors, 64 spp (a GPU needs ≥ 10⁶ paths per launch), "
+            "references on cuda_ad_rgb. `gridvolume` runs with its defaults, i.e. CUDA hardware "
+            "textures (`accel=true`: 8-bit interpolation weights).\n"]
+
+
+def _cuda_tests(logs):
+    """One line on the CUDA test logs in cuda/logs/ (none without them)."""
+    if not os.path.isdir(logs):
+        return []
+    tests = []
+    for name, prefix in [("doctest_translation.log", "[doctest] test cases"),
+                         ("doctest_io.log", "[doctest] test cases")]:
+        line = _first_line(os.path.join(logs, name), prefix)
+        if line:  # "[doctest] test cases:   9 |   9 passed | 0 failed | 0 skipped"
+            parts = [" ".join(x.split()) for x in line.split(":", 1)[1].split("|")]
+            tests.append(f"`{name[:-4]}`: {parts[0]} cases, " + ", ".join(parts[1:]))
+    try:
+        last = [x for x in open(os.path.join(logs, "pytest.log")) if " in " in x and
+                ("passed" in x or "failed" in x)][-1]
+        last = last.strip(" =\n")
+        tests.append("pytest (NVDB_TEST_VARIANTS = cuda_ad_rgb, cuda_ad_mono, "
+                     f"cuda_ad_spectral): {last}")
+    except (OSError, IndexError):
+        pass
+    if not tests:
+        return []
+    return ["CUDA tests on that machine ([cuda/logs/](cuda/logs/)): " + "; ".join(tests) + ".\n"]
+
+
+def _cuda_table(saved):
+    """Render time, lookups and device memory per case and filter, from
+    cuda/results.json."""
     results = saved["results"]
     trows = {(t["case"], t["filter"]): t for t in time_rows(results)}
     lrows = {(r["case"], r["filter"]): r for r in lookup_rows(results)}
-    gen = _first_line(os.path.join(cdir, "REPORT.md"), "Generated by")
-    device = _first_line(os.path.join(cdir, "REPORT.md"), "- GPU:")
-    L = ["## CUDA (cuda_ad_rgb, measured on a GPU)\n",
-         f"{device[2:] if device else 'GPU: unknown.'} Full report: [cuda/REPORT.md](cuda/REPORT.md) "
-         f"({gen.split(' (')[0].replace('Generated by ', 'command: ') if gen else ''}; "
-         "through the offline GPU kit, `scripts/gpu_kit_run.sh`). Same scene and method as "
-         "above, at 128² × 8 sensors, 64 spp (a GPU needs ≥ 10⁶ paths per launch), references "
-         "on cuda_ad_rgb. `gridvolume` runs with its defaults, i.e. CUDA hardware textures "
-         "(`accel=true`: 8-bit interpolation weights).\n"]
-    logs = os.path.join(cdir, "logs")
-    if os.path.isdir(logs):
-        tests = []
-        for name, prefix in [("doctest_translation.log", "[doctest] test cases"),
-                             ("doctest_io.log", "[doctest] test cases")]:
-            line = _first_line(os.path.join(logs, name), prefix)
-            if line:  # "[doctest] test cases:   9 |   9 passed | 0 failed | 0 skipped"
-                parts = [" ".join(x.split()) for x in line.split(":", 1)[1].split("|")]
-                tests.append(f"`{name[:-4]}`: {parts[0]} cases, " + ", ".join(parts[1:]))
-        try:
-            last = [x for x in open(os.path.join(logs, "pytest.log")) if " in " in x and
-                    ("passed" in x or "failed" in x)][-1]
-            last = last.strip(" =\n")
-            tests.append("pytest (NVDB_TEST_VARIANTS = cuda_ad_rgb, cuda_ad_mono, "
-                         f"cuda_ad_spectral): {last}")
-        except (OSError, IndexError):
-            pass
-        if tests:
-            L.append("CUDA tests on that machine ([cuda/logs/](cuda/logs/)): " + "; ".join(tests)
-                     + ".\n")
-    L += ["| case | filter | nano warm [s] | grid warm [s] | **render nano/grid** | "
-          "lookups nano/grid | device memory nano [MiB] | grid [MiB] | nano / grid bytes | "
-          "grid / nano memory |",
-          "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    L = ["| case | filter | nano warm [s] | grid warm [s] | **render nano/grid** | "
+         "lookups nano/grid | device memory nano [MiB] | grid [MiB] | nano / grid bytes | "
+         "grid / nano memory |",
+         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     cases = {c["case"]: c for c in saved["cases"]}
     for (case, filt), t in sorted(trows.items(), key=lambda kv: (list(cases).index(kv[0][0]),
                                                                  kv[0][1])):
@@ -712,6 +844,12 @@ def cuda_section(out):
     L.append("\nDevice memory: NVML (nvidia-smi's view), after − before loading, 2 MiB pages: "
              "the grid itself is one allocation of its exact size (Dr.Jit's storage accounting: "
              "1.000 × the grid on every case), so small grids show up to one page more.\n")
+    return L
+
+
+def _cuda_extras(cdir):
+    """cuda/memory_ab.md and cuda/huge_sparse.md, where they exist."""
+    L = []
     for extra in ("memory_ab.md", "huge_sparse.md"):
         f = os.path.join(cdir, extra)
         if os.path.exists(f):

@@ -344,8 +344,10 @@ def main():
     import report
     save(a, case_list, results, errors, refs_info, notes, runner.failures, started, elapsed,
          has_gpu)
-    report.write_all(a, case_list, results, errors, refs_info, notes, runner.failures,
-                     started, elapsed, has_gpu)
+    # runner.failures itself: write_all may add the plots' failure to it
+    report.write_all(report.Run(args=a, cases=case_list, results=results, errors=errors,
+                                refs_info=refs_info, notes=notes, failures=runner.failures,
+                                started=started, elapsed=elapsed, has_gpu=has_gpu))
     log(f"== done in {elapsed:.0f} s ({runner.n_workers} worker processes); results in {a.out}")
     if runner.failures:
         log(f"== {len(runner.failures)} measurement(s) FAILED: "
@@ -374,9 +376,11 @@ def report_only(args):
     sys.argv = [sys.argv[0]] + saved["argv"]
     case_list = [cases_mod.CaseRecord(r) for r in saved["cases"]]
     failures = [tuple(f) for f in saved["failures"]]
-    report.write_all(a, case_list, saved["results"], saved["errors"], saved["refs_info"],
-                     saved["notes"], failures, datetime.datetime.fromisoformat(saved["started"]),
-                     saved["elapsed"], saved["has_gpu"])
+    report.write_all(report.Run(args=a, cases=case_list, results=saved["results"],
+                                errors=saved["errors"], refs_info=saved["refs_info"],
+                                notes=saved["notes"], failures=failures,
+                                started=datetime.datetime.fromisoformat(saved["started"]),
+                                elapsed=saved["elapsed"], has_gpu=saved["has_gpu"]))
     log(f"== report rewritten from {out}/results.json")
     sys.exit(1 if failures else 0)
 
