@@ -20,6 +20,7 @@ import mitsuba as mi
 ROOT = Path(__file__).resolve().parent.parent
 BUILD = Path(os.environ.get("NVDB_BUILD_DIR", ROOT / "build")).resolve()
 MAKE_GRID = BUILD / "bin" / "nvdb_make_test_grid"
+MAKE_STABILITY_GRID = BUILD / "bin" / "nvdb_make_stability_grid"
 # Real volumes from other tools, read in place: $NVDB_SHARED_DATA, by default
 # ../shared/data beside the repository. Tests that need them skip without it.
 SHARED_DATA = Path(os.environ.get("NVDB_SHARED_DATA") or ROOT.parent / "shared" / "data").resolve()
@@ -37,6 +38,17 @@ def need_shared_data(*names):
         if not (SHARED_DATA / n).exists():
             pytest.skip(f"{SHARED_DATA / n} is missing")
     return SHARED_DATA
+
+
+def shared_data_files(pattern):
+    """Parameters for a test over every shared file matching `pattern`, with
+    the file names as ids. Without the folder: one parameter None (id
+    "no_shared_data"), so that the test runs and its need_shared_data() call
+    skips with the reason, where an empty list would skip with pytest's
+    "got empty parameter set"."""
+    if not SHARED_DATA.is_dir():
+        return [pytest.param(None, id="no_shared_data")]
+    return [pytest.param(p, id=p.name) for p in sorted(SHARED_DATA.glob(pattern))]
 
 
 def has_cuda():
@@ -63,6 +75,16 @@ def _setup_variant(name):
     mi.set_variant(name)
     # Our plugin directory goes first: mitsuba looks up plugins/<name>.so
     mi.file_resolver().prepend(str(BUILD))
+
+
+# Markers (registered here, so that --strict-markers accepts them):
+#   slow: takes more than ~3 s on a 2-core CPU machine (the >4 GiB grid of
+#         test_stability.py). The default run includes them;
+#         `python3 -m pytest -q tests -p no:cacheprovider -m "not slow"` is the
+#         quick subset.
+def pytest_configure(config):
+    config.addinivalue_line("markers", "slow: takes more than ~3 s on a 2-core CPU machine; "
+                            'deselect with -m "not slow"')
 
 
 def pytest_generate_tests(metafunc):
@@ -127,6 +149,24 @@ class GridFactory:
 @pytest.fixture(scope="session")
 def make_grid(tmp_path_factory):
     return GridFactory(tmp_path_factory.mktemp("grids"))
+
+
+def make_stability_grid(directory, name, *args, dense=True):
+    """Writes directory/name.nvdb (+ .vol) with build/bin/nvdb_make_stability_grid
+    (OpenVDB -> NanoVDB's own converter and writer, tests/make_stability_grid.cpp);
+    `args` are its options. Returns (nvdb, vol or None, summary)."""
+    if not MAKE_STABILITY_GRID.exists():
+        pytest.fail(f"{MAKE_STABILITY_GRID} is missing: build the project first")
+    directory = Path(directory)
+    nvdb, vol = directory / f"{name}.nvdb", directory / f"{name}.vol"
+    cmd = [str(MAKE_STABILITY_GRID), str(nvdb), *map(str, args)]
+    if dense:
+        cmd += ["--dense", str(vol)]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.split()
+    # "bbox x0 y0 z0 x1 y1 z1 bytes N leaves N lowers N uppers N"
+    summary = {out[i]: int(out[i + 1]) for i in range(7, len(out) - 1, 2)}
+    summary["bbox"] = [int(v) for v in out[1:7]]
+    return str(nvdb), (str(vol) if dense else None), summary
 
 
 def gpu_used_bytes():

@@ -12,7 +12,6 @@ import subprocess
 import numpy as np
 import pytest
 import drjit as dr
-import mitsuba as mi
 
 from conftest import (BUILD, _setup_variant, eval_points, gpu_used_bytes, has_llvm, load_nvdb,
                       settle_gpu)

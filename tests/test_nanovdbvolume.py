@@ -4,7 +4,7 @@ a dense export of the same active box (written with NanoVDB's own C++
 accessor), hand-derived values, and the NanoVDB files in ../shared/data.
 """
 
-import shutil
+import re
 import struct
 from pathlib import Path
 
@@ -13,8 +13,9 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 
-from conftest import (SHARED_DATA, need_shared_data, assert_renders_match, eval_points, load_dense,
-                      load_nvdb, read_vol)
+from conftest import (need_shared_data, shared_data_files, assert_renders_match,
+                      eval_points, load_dense, load_nvdb, make_stability_grid, read_vol)
+from test_stability import in_unit_range, render_transmittance
 
 
 # ---------------------------------------------------------------------------
@@ -228,10 +229,18 @@ def test12_empty_grid_is_background(variants_rgb, make_grid):
 
 # ---------------------------------------------------------------------------
 #  Invalid voxel values: NaN, Inf, negative (parameter invalid_values)
+#
+#   invalid_values = "error" (default): a NaN or +-Inf anywhere a lookup can
+#       reach -> load error naming file, grid, counts and the first offending
+#       coordinate; negative values load, with a warning, as they are.
+#   invalid_values = "clamp": NaN -> 0, +Inf -> the grid's largest finite
+#       value, -Inf and negatives -> 0, in place before upload; max() is
+#       recomputed afterwards.
 # ---------------------------------------------------------------------------
 
 def _single_voxel_with(make_grid, tmp_path, value, name):
-    """single_voxel (3.0 at (7, -3, 12)) with every stored 3.0 replaced."""
+    """single_voxel (3.0 at (7, -3, 12)) with every stored 3.0 replaced: the
+    voxel's value and the statistics that repeat it."""
     nvdb, _ = make_grid("single_voxel", dense=False)
     data = bytearray(Path(nvdb).read_bytes())
     three, new = struct.pack("<f", 3.0), struct.pack("<f", value)
@@ -244,42 +253,88 @@ def _single_voxel_with(make_grid, tmp_path, value, name):
     return str(path)
 
 
-@pytest.mark.parametrize("value, word", [(float("nan"), "NaN"), (float("inf"), "+Inf"),
-                                         (float("-inf"), "-Inf")])
-def test15_non_finite_values_rejected_at_the_voxel(variant_scalar_rgb, make_grid, tmp_path,
-                                                  value, word):
-    path = _single_voxel_with(make_grid, tmp_path, value, "bad_value.nvdb")
-    with pytest.raises(RuntimeError, match=r"(?s)bad_value\.nvdb.*single_voxel.*"
-                       r"\(7, -3, 12\).*invalid_values"):
-        load_nvdb(path)
+def _invalid_grid(tmp_path):
+    """Box 0..7 of 1.0 with a 7.0 at (5, 5, 5), the largest finite value, and,
+    in the same leaf (so that "first" is fixed by the leaf's value order
+    i*64 + j*8 + k): NaN at (1, 2, 3), +Inf at (4, 2, 3), -Inf at (6, 0, 0)
+    and -0.5 at (2, 2, 2)."""
+    nvdb, _, _ = make_stability_grid(tmp_path, "invalid", "--value", 1.0,
+                                     "--set", 5, 5, 5, 7.0, "--set", 1, 2, 3, "nan",
+                                     "--set", 4, 2, 3, "inf", "--set", 6, 0, 0, "-inf",
+                                     "--set", 2, 2, 2, -0.5, dense=False)
+    return nvdb
 
 
-@pytest.mark.parametrize("value, expected", [(float("nan"), 0.0), (float("-inf"), 0.0),
-                                             (-2.5, 0.0)])
-def test16_clamp_replaces_invalid_values(variants_rgb, make_grid, tmp_path, value, expected):
-    path = _single_voxel_with(make_grid, tmp_path, value, "clamp_me.nvdb")
-    vol = load_nvdb(path, invalid_values="clamp", filter_type="nearest")
-    v = eval_points(vol, [[0.5, 0.5, 0.5]])
-    assert np.all(v == expected) and np.all(np.isfinite(v))
-    assert vol.max() == 0.0
+def _at_index(vol, ijk):
+    """Lookup with use_grid_transform on an identity map: world = index."""
+    return eval_points(vol, np.asarray(ijk, dtype=np.float32))
 
 
-def test17_negative_values_load_by_default(variant_scalar_rgb, make_grid, tmp_path):
-    # A volume is not always a density: negatives load (with a warning)
+def test13_non_finite_values_rejected_at_the_first_voxel(variants_rgb, make_grid, tmp_path):
+    # One kind at a time: the message names the file, the grid, the count of
+    # that kind, its voxel and the way out.
+    for value, word in [(float("nan"), "NaN"), (float("inf"), "+Inf"), (float("-inf"), "-Inf")]:
+        path = _single_voxel_with(make_grid, tmp_path, value, "bad_value.nvdb")
+        with pytest.raises(RuntimeError, match=r"(?s)bad_value\.nvdb.*single_voxel.*1 " +
+                           re.escape(word) + r".*\(7, -3, 12\).*invalid_values"):
+            load_nvdb(path)
+    # Every kind in one grid: the counts, the first NaN and the first infinite
+    # value; "error" is the default.
+    nvdb = _invalid_grid(tmp_path)
+    for kwargs in [{}, {"invalid_values": "error"}]:
+        with pytest.raises(RuntimeError, match=r'(?s)invalid\.nvdb.*"stability".*1 NaN '
+                           r'\(first: voxel \(1, 2, 3\)\), 1 \+Inf and 1 -Inf values '
+                           r'\(first infinite: voxel \(4, 2, 3\)\).*invalid_values="clamp"'):
+            load_nvdb(nvdb, **kwargs)
+
+
+def test14_clamp_replaces_invalid_values(variants_rgb, make_grid, tmp_path):
+    # The single voxel alone: NaN, -Inf and negatives become 0; the only
+    # finite value left is the background 0, which +Inf becomes too.
+    for value in [float("nan"), float("-inf"), -2.5, float("inf")]:
+        path = _single_voxel_with(make_grid, tmp_path, value, "clamp_me.nvdb")
+        vol = load_nvdb(path, invalid_values="clamp", filter_type="nearest")
+        assert np.all(eval_points(vol, [[0.5, 0.5, 0.5]]) == 0.0), value
+        assert vol.max() == 0.0, value
+    # Every kind in one grid: +Inf becomes the largest finite value (7.0),
+    # the other voxels keep theirs, max() is recomputed, and trilinear
+    # lookups and a render see only finite values.
+    nvdb = _invalid_grid(tmp_path)
+    vol = load_nvdb(nvdb, invalid_values="clamp", filter_type="nearest", use_grid_transform=True)
+    v = _at_index(vol, [[1, 2, 3], [4, 2, 3], [6, 0, 0], [2, 2, 2], [5, 5, 5], [0, 0, 0]])
+    assert v.tolist() == [0.0, 7.0, 0.0, 0.0, 7.0, 1.0]
+    assert vol.max() == 7.0
+    tri = load_nvdb(nvdb, invalid_values="clamp")
+    assert np.all(np.isfinite(eval_points(tri, random_points(500, 31, 0, 1))))
+    img = render_transmittance(tri, size=8, spp=4)   # asserts finite pixels
+    assert in_unit_range(img)
+
+
+def test15_negative_values_load_by_default(variants_rgb, make_grid, tmp_path):
+    # A volume is not always a density: negatives load (with a warning) as
+    # they are; "clamp" sets them to 0 and leaves the other voxels alone.
     path = _single_voxel_with(make_grid, tmp_path, -2.5, "negative.nvdb")
     vol = load_nvdb(path, filter_type="nearest")
     assert np.all(eval_points(vol, [[0.5, 0.5, 0.5]]) == -2.5)
     assert vol.max() == 0.0   # the background bounds the negative voxel
-    with pytest.raises(RuntimeError, match="invalid_values"):
-        load_nvdb(path, invalid_values="ignore")
+    nvdb, _, _ = make_stability_grid(tmp_path, "negative", "--value", 1.0,
+                                     "--set", 2, 2, 2, -0.5, dense=False)
+    vol = load_nvdb(nvdb, filter_type="nearest", use_grid_transform=True)
+    assert _at_index(vol, [[2, 2, 2], [3, 3, 3]]).tolist() == [-0.5, 1.0]
+    vol = load_nvdb(nvdb, filter_type="nearest", use_grid_transform=True, invalid_values="clamp")
+    assert _at_index(vol, [[2, 2, 2], [3, 3, 3]]).tolist() == [0.0, 1.0]
 
 
-def test18_clamped_inf_becomes_the_largest_finite_value(variant_scalar_rgb, make_grid, tmp_path):
-    path = _single_voxel_with(make_grid, tmp_path, float("inf"), "posinf.nvdb")
-    vol = load_nvdb(path, invalid_values="clamp", filter_type="nearest")
-    # The only finite value left is the background 0: +Inf -> 0, max() finite
-    assert np.isfinite(vol.max())
-    assert np.all(np.isfinite(eval_points(vol, [[0.5, 0.5, 0.5]])))
+def test16_invalid_values_choices(variant_scalar_rgb, make_grid, tmp_path):
+    # Anything but "error" and "clamp" is refused, naming the choices, on a
+    # clean grid and on one that has a value to clamp.
+    clean, _ = make_grid("single_voxel", dense=False)
+    negative = _single_voxel_with(make_grid, tmp_path, -2.5, "negative.nvdb")
+    for path, choice in [(clean, "bogus"), (negative, "ignore")]:
+        with pytest.raises(RuntimeError, match=rf'(?s)(?=.*invalid_values)(?=.*"{choice}")'
+                                               r'(?=.*"error")(?=.*"clamp")'):
+            load_nvdb(path, invalid_values=choice)
+
 
 # ---------------------------------------------------------------------------
 #  Renders: nanovdbvolume vs gridvolume, same scene, same seed
@@ -287,7 +342,7 @@ def test18_clamped_inf_becomes_the_largest_finite_value(variant_scalar_rgb, make
 
 @pytest.mark.parametrize("filter_type", ["nearest", "trilinear"])
 @pytest.mark.parametrize("name", ["fog_sphere", "noisy_cloud"])
-def test13_render_matches_gridvolume(variants_rgb, make_grid, name, filter_type):
+def test17_render_matches_gridvolume(variants_rgb, make_grid, name, filter_type):
     nvdb, vol = make_grid(name)
     nano = load_nvdb(nvdb, filter_type=filter_type)
     dense = load_dense(vol, filter_type=filter_type)
@@ -301,7 +356,7 @@ def test13_render_matches_gridvolume(variants_rgb, make_grid, name, filter_type)
 
 
 @pytest.mark.parametrize("name", ["fog_sphere", "constant_cube"])
-def test14_trilinear_never_exceeds_max(variants_rgb, make_grid, name):
+def test18_trilinear_never_exceeds_max(variants_rgb, make_grid, name):
     # max() must bound every value the medium sees (it is the majorant), also
     # after float rounding of the interpolation weights.
     nvdb, _ = make_grid(name, dense=False)
@@ -315,20 +370,20 @@ def test14_trilinear_never_exceeds_max(variants_rgb, make_grid, name):
 #  Bad input: each a clear error naming the file, never a crash
 # ---------------------------------------------------------------------------
 
-def test20_missing_file(variant_scalar_rgb, tmp_path):
+def test19_missing_file(variant_scalar_rgb, tmp_path):
     path = tmp_path / "does_not_exist.nvdb"
     with pytest.raises(RuntimeError, match="does_not_exist.nvdb"):
         load_nvdb(str(path))
 
 
-def test21_not_a_nanovdb_file(variant_scalar_rgb, tmp_path):
+def test20_not_a_nanovdb_file(variant_scalar_rgb, tmp_path):
     path = tmp_path / "text.nvdb"
     path.write_text("this is not a NanoVDB file, just some text\n" * 10)
     with pytest.raises(RuntimeError, match=r"(?s)text\.nvdb.*NanoVDB"):
         load_nvdb(str(path))
 
 
-def test22_truncated_file(variant_scalar_rgb, make_grid, tmp_path):
+def test21_truncated_file(variant_scalar_rgb, make_grid, tmp_path):
     nvdb, _ = make_grid("fog_sphere", dense=False)
     data = Path(nvdb).read_bytes()
     for cut in [10, 100, 300, len(data) // 2, len(data) - 1]:
@@ -347,7 +402,7 @@ def _grid_payload_offset(data):
     return 16 + 176 + name_size
 
 
-def test23_node_offset_outside_buffer(variant_scalar_rgb, make_grid, tmp_path):
+def test22_node_offset_outside_buffer(variant_scalar_rgb, make_grid, tmp_path):
     nvdb, _ = make_grid("fog_sphere", dense=False)
     data = bytearray(Path(nvdb).read_bytes())
     grid = _grid_payload_offset(data)
@@ -369,29 +424,29 @@ def test23_node_offset_outside_buffer(variant_scalar_rgb, make_grid, tmp_path):
         load_nvdb(str(path2))
 
 
-def test24_unsupported_grid_type(variant_scalar_rgb):
-    need_shared_data("warp_int32_zip_32.3.3.nvdb", "warp_vec3f_zip_32.3.3.nvdb")
-    path = SHARED_DATA / "warp_int32_zip_32.3.3.nvdb"
+def test23_unsupported_grid_type(variant_scalar_rgb):
+    data = need_shared_data("warp_int32_zip_32.3.3.nvdb", "warp_vec3f_zip_32.3.3.nvdb")
+    path = data / "warp_int32_zip_32.3.3.nvdb"
     with pytest.raises(RuntimeError, match=r"(?s)warp_int32_zip_32\.3\.3\.nvdb.*int32"):
         load_nvdb(str(path))
-    path = SHARED_DATA / "warp_vec3f_zip_32.3.3.nvdb"
+    path = data / "warp_vec3f_zip_32.3.3.nvdb"
     with pytest.raises(RuntimeError, match=r"(?s)warp_vec3f_zip_32\.3\.3\.nvdb.*Vec3f"):
         load_nvdb(str(path))
 
 
-def test25_grid_not_found_lists_grids(variant_scalar_rgb):
+def test24_grid_not_found_lists_grids(variant_scalar_rgb):
     path = need_shared_data("warp_torus_ls_zip_32.3.3.nvdb") / "warp_torus_ls_zip_32.3.3.nvdb"
     with pytest.raises(RuntimeError, match=r'(?s)warp_torus.*"nope".*surface'):
         load_nvdb(str(path), grid="nope")
 
 
-def test26_invalid_filter_type(variant_scalar_rgb, make_grid):
+def test25_invalid_filter_type(variant_scalar_rgb, make_grid):
     nvdb, _ = make_grid("single_voxel", dense=False)
     with pytest.raises(RuntimeError, match="cubic"):
         load_nvdb(nvdb, filter_type="cubic")
 
 
-def test27_directory_and_empty_file(variant_scalar_rgb, tmp_path):
+def test26_directory_and_empty_file(variant_scalar_rgb, tmp_path):
     empty = tmp_path / "empty.nvdb"
     empty.write_bytes(b"")
     with pytest.raises(RuntimeError, match="empty.nvdb"):
@@ -404,11 +459,9 @@ def test27_directory_and_empty_file(variant_scalar_rgb, tmp_path):
 #  The real files in ../shared/data
 # ---------------------------------------------------------------------------
 
-SHARED_NVDB = sorted(SHARED_DATA.glob("*.nvdb")) if SHARED_DATA.exists() else []
-
-
-@pytest.mark.parametrize("path", SHARED_NVDB, ids=[p.name for p in SHARED_NVDB])
-def test30_shared_data_files(variants_rgb, path):
+@pytest.mark.parametrize("path", shared_data_files("*.nvdb"))
+def test27_shared_data_files(variants_rgb, path):
+    need_shared_data()
     name = path.name
     if name.startswith("warp_torus_ls"):
         # A float level set: loads, values are finite, max is a bound
@@ -438,7 +491,7 @@ def test30_shared_data_files(variants_rgb, path):
 #  Install step
 # ---------------------------------------------------------------------------
 
-def test40_install_puts_plugin_into_mitsubas_plugin_dir(tmp_path):
+def test28_install_puts_plugin_into_mitsubas_plugin_dir(tmp_path):
     # 'cmake --install build' targets the installed Mitsuba's own plugins/
     # directory, where Mitsuba finds it with no path set-up. Staged through
     # DESTDIR so that the test leaves site-packages untouched.

@@ -14,7 +14,7 @@ Grids come from build/bin/nvdb_make_stability_grid (OpenVDB -> NanoVDB's own
 converter and writer, tests/make_stability_grid.cpp) and, for the grid
 beyond 4 GiB, build/bin/nvdb_big_grid (tests/big_grid.cpp).
 
-Precision of far-away grids (measured by test05, see its docstring):
+Precision of far-away grids (measured by test05, see its comments):
  * Default mode: the local point u in [0, 1]^3 gives the index position
    m + u * d - 0.5 relative to the box minimum m, and the integer m is added
    last. The precision therefore does not depend on where the grid is: boxes
@@ -32,9 +32,7 @@ Precision of far-away grids (measured by test05, see its docstring):
 
 import os
 import shutil
-import struct
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -43,29 +41,14 @@ import mitsuba as mi
 
 from conftest import (BUILD, eval_points, gpu_used_bytes, load_dense, load_nvdb, read_vol,
                       settle_gpu)
+from conftest import make_stability_grid as make
 
-MAKE = BUILD / "bin" / "nvdb_make_stability_grid"
 BIG = BUILD / "bin" / "nvdb_big_grid"
 
 
 # ---------------------------------------------------------------------------
 #  Helpers
 # ---------------------------------------------------------------------------
-
-def make(tmp_path, name, *args, dense=True):
-    """Writes tmp_path/name.nvdb (+ .vol); returns (nvdb, vol or None, summary)."""
-    if not MAKE.exists():
-        pytest.fail(f"{MAKE} is missing: build the project first")
-    nvdb, vol = tmp_path / f"{name}.nvdb", tmp_path / f"{name}.vol"
-    cmd = [str(MAKE), str(nvdb), *map(str, args)]
-    if dense:
-        cmd += ["--dense", str(vol)]
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.split()
-    # "bbox x0 y0 z0 x1 y1 z1 bytes N leaves N lowers N uppers N"
-    summary = {out[i]: int(out[i + 1]) for i in range(7, len(out) - 1, 2)}
-    summary["bbox"] = [int(v) for v in out[1:7]]
-    return str(nvdb), (str(vol) if dense else None), summary
-
 
 def n_points(jit, scalar):
     return jit if dr.is_jit_v(mi.Float) else scalar
@@ -507,7 +490,8 @@ def rss_bytes():
     return 0
 
 
-def test20_beyond_4gib(variants_rgb, big_grid):
+@pytest.mark.slow
+def test12_beyond_4gib(variants_rgb, big_grid):
     # A 4.61 GiB grid (2.3 M leaves) loads; spot reads whose value address
     # lies past 4 GiB match PNanoVDB (C, 64-bit addresses) bit for bit and
     # the generator's own formula; the backend holds <= 1.01 x the grid
@@ -566,89 +550,3 @@ def test20_beyond_4gib(variants_rgb, big_grid):
     tol = binomial_tol(expect, size_px * size_px * spp, img)
     assert abs(img.mean() - expect) <= tol, (img.mean(), expect, tol)
     del vol, cube
-
-
-# ---------------------------------------------------------------------------
-#  NaN, Inf and negative voxels: the `invalid_values` policy
-#
-#  These tests describe the plugin parameter proposed with io.h's
-#  scan_values()/sanitize_values() (wiring in src/volumes/grid_nanovdb.cpp
-#  is the lead's): until the plugin reads `invalid_values`, they report
-#  XFAIL ("plugin does not read invalid_values yet"); afterwards they must pass.
-#   invalid_values = "error" (default): a NaN or +-Inf anywhere a lookup can
-#       reach -> load error naming file, grid, counts and the first offending
-#       coordinate; negative values load, with a warning naming the count
-#       and the first coordinate (kept as they are).
-#   invalid_values = "clamp": NaN -> 0, +Inf -> the grid's largest finite
-#       value, -Inf and negatives -> 0, in place before upload; max() is
-#       recomputed afterwards.
-# ---------------------------------------------------------------------------
-
-def invalid_grid(tmp_path):
-    # Box 0..7 of 1.0, a 7.0 (the largest finite value), and in the same leaf
-    # (so that "first" is fixed by the leaf's value order i*64 + j*8 + k):
-    # NaN at (1, 2, 3), +Inf at (4, 2, 3), -Inf at (6, 0, 0), -0.5 at (2, 2, 2)
-    nvdb, _, _ = make(tmp_path, "invalid", "--value", 1.0,
-                      "--set", 5, 5, 5, 7.0, "--set", 1, 2, 3, "nan",
-                      "--set", 4, 2, 3, "inf", "--set", 6, 0, 0, "-inf",
-                      "--set", 2, 2, 2, -0.5, dense=False)
-    return nvdb
-
-
-def require_invalid_values_param(nvdb):
-    # Probe with a clean grid: a grid with NaN fails for another reason first
-    clean = Path(nvdb).with_name("probe_clean.nvdb")
-    if not clean.exists():
-        make(Path(nvdb).parent, "probe_clean", dense=False)
-    try:
-        load_nvdb(str(clean), invalid_values="clamp")
-    except RuntimeError as e:
-        if "unreferenced" in str(e) and "invalid_values" in str(e):
-            pytest.xfail("plugin does not read invalid_values yet (lead: wire io::scan_values/"
-                         "sanitize_values)")
-
-
-def at_index(vol, ijk):
-    """nearest with use_grid_transform (identity map): world = index."""
-    return eval_points(vol, np.asarray(ijk, dtype=np.float32))
-
-
-def test30_nan_inf_rejected_with_first_coordinate(variants_rgb, tmp_path):
-    nvdb = invalid_grid(tmp_path)
-    require_invalid_values_param(nvdb)
-    for kwargs in [{}, {"invalid_values": "error"}]:
-        with pytest.raises(RuntimeError, match=r'(?s)invalid\.nvdb.*"stability".*1 NaN '
-                           r'\(first: voxel \(1, 2, 3\)\), 1 \+Inf and 1 -Inf values '
-                           r'\(first infinite: voxel \(4, 2, 3\)\).*invalid_values="clamp"'):
-            load_nvdb(nvdb, **kwargs)
-
-
-def test31_clamp_replaces_invalid_values(variants_rgb, tmp_path):
-    nvdb = invalid_grid(tmp_path)
-    require_invalid_values_param(nvdb)
-    vol = load_nvdb(nvdb, invalid_values="clamp", filter_type="nearest", use_grid_transform=True)
-    v = at_index(vol, [[1, 2, 3], [4, 2, 3], [6, 0, 0], [2, 2, 2], [5, 5, 5], [0, 0, 0]])
-    assert v.tolist() == [0.0, 7.0, 0.0, 0.0, 7.0, 1.0]
-    assert vol.max() == 7.0
-    tri = load_nvdb(nvdb, invalid_values="clamp")
-    assert np.all(np.isfinite(eval_points(tri, np.random.default_rng(31).uniform(0, 1, (500, 3)))))
-    img = render_transmittance(tri, size=8, spp=4)
-    assert in_unit_range(img)
-
-
-def test32_negative_values_load_by_default(variants_rgb, tmp_path):
-    nvdb, _, _ = make(tmp_path, "negative", "--value", 1.0, "--set", 2, 2, 2, -0.5,
-                      dense=False)
-    require_invalid_values_param(nvdb)
-    vol = load_nvdb(nvdb, filter_type="nearest", use_grid_transform=True)   # warns, keeps
-    assert at_index(vol, [[2, 2, 2]])[0] == -0.5
-    vol = load_nvdb(nvdb, filter_type="nearest", use_grid_transform=True, invalid_values="clamp")
-    assert at_index(vol, [[2, 2, 2], [3, 3, 3]]).tolist() == [0.0, 1.0]
-
-
-def test33_invalid_values_choices(variant_scalar_rgb, tmp_path):
-    nvdb, _, _ = make(tmp_path, "clean", dense=False)
-    require_invalid_values_param(nvdb)
-    with pytest.raises(RuntimeError, match=r'(?s)(?=.*invalid_values)(?=.*"bogus")'
-                                           r'(?=.*"error")(?=.*"clamp")'):
-        load_nvdb(nvdb, invalid_values="bogus")

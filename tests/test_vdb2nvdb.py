@@ -11,7 +11,6 @@ build/bin/vdb2nvdb). The plugin comes from $NVDB_BUILD_DIR (conftest.BUILD).
 
 import os
 import re
-import struct
 import subprocess
 import sysconfig
 from pathlib import Path
@@ -21,7 +20,7 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 
-from conftest import BUILD, SHARED_DATA, need_shared_data, read_vol
+from conftest import BUILD, need_shared_data, read_vol, shared_data_files
 from conftest import assert_renders_match, eval_points, load_dense, load_nvdb
 from test_nanovdbvolume import random_points, render
 
@@ -424,13 +423,13 @@ def test18_quantize_options(gen, tmp_path):
 #  Bad input: a clear message, a non-zero exit, nothing left behind
 # ---------------------------------------------------------------------------
 
-def test20_missing_input(tmp_path):
+def test19_missing_input(tmp_path):
     p = run(tmp_path / "nope.vdb", tmp_path / "o.nvdb", rc=1)
     assert "nope.vdb" in p.stderr and "no such file" in p.stderr
     assert list(tmp_path.iterdir()) == []
 
 
-def test21_corrupt_and_truncated_input(gen, tmp_path):
+def test20_corrupt_and_truncated_input(gen, tmp_path):
     (tmp_path / "garbage.vdb").write_bytes(b"this is not a vdb file at all" * 10)
     cloud = gen("cloud").read_bytes()
     (tmp_path / "trunc.vdb").write_bytes(cloud[: len(cloud) // 2])
@@ -441,7 +440,7 @@ def test21_corrupt_and_truncated_input(gen, tmp_path):
     assert not (tmp_path / "o.nvdb").exists() and leftovers(tmp_path) == []
 
 
-def test22_unknown_grid_lists_the_grids(gen, tmp_path):
+def test21_unknown_grid_lists_the_grids(gen, tmp_path):
     p = run(gen("multi"), tmp_path / "o.nvdb", "--grid", "smoke", rc=1)
     assert 'no grid named "smoke"' in p.stderr
     for name in ["density", "vel", "ls_sphere", "flags", "temperature"]:
@@ -453,13 +452,13 @@ def test22_unknown_grid_lists_the_grids(gen, tmp_path):
 
 @pytest.mark.parametrize("name,kind", [("openvdb_sphere_points.vdb", "ptdataidx32"),
                                        ("houdini_velocity_vec3s.vdb", "vec3s")])
-def test23_no_convertible_grid(tmp_path, name, kind):
+def test22_no_convertible_grid(tmp_path, name, kind):
     p = run(need_shared_data(name) / name, tmp_path / "o.nvdb", rc=1)
     assert "no scalar float grid" in p.stderr and kind in p.stderr and name in p.stderr
     assert list(tmp_path.iterdir()) == []
 
 
-def test24_unwritable_output(gen, tmp_path):
+def test23_unwritable_output(gen, tmp_path):
     (tmp_path / "file").write_text("x")
     cases = [tmp_path / "no" / "such" / "dir" / "o.nvdb",   # missing directory
              tmp_path / "file" / "o.nvdb",                   # a file as directory
@@ -472,7 +471,7 @@ def test24_unwritable_output(gen, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
 
-def test25_dense_too_large_is_refused(gen, tmp_path):
+def test24_dense_too_large_is_refused(gen, tmp_path):
     p = run(gen("cloud"), tmp_path / "o.nvdb", "--dense", tmp_path / "o.vol",
             "--max-dense-bytes", "1M", rc=1)
     # cloud: 121 x 129 x 119 voxels = 7,429,884 B + 48 B of header
@@ -484,7 +483,6 @@ def test25_dense_too_large_is_refused(gen, tmp_path):
 #  Real files (../shared/data, used in place)
 # ---------------------------------------------------------------------------
 
-SHARED_VDB = sorted(SHARED_DATA.glob("*.vdb"))
 # file -> grids written (None: rejected with a clear message)
 EXPECTED = {
     "houdini_velocity_vec3s.vdb": None,
@@ -498,8 +496,9 @@ EXPECTED = {
 }
 
 
-@pytest.mark.parametrize("path", SHARED_VDB, ids=[p.name for p in SHARED_VDB])
-def test30_shared_data_files(path, tmp_path):
+@pytest.mark.parametrize("path", shared_data_files("*.vdb"))
+def test25_shared_data_files(path, tmp_path):
+    need_shared_data()
     assert path.name in EXPECTED, f"new file in shared/data: add {path.name} to EXPECTED"
     want = EXPECTED[path.name]
     out = tmp_path / "o.nvdb"
@@ -526,7 +525,7 @@ def test30_shared_data_files(path, tmp_path):
 #  Installation
 # ---------------------------------------------------------------------------
 
-def test40_install_puts_vdb2nvdb_beside_python_scripts(tmp_path):
+def test26_install_puts_vdb2nvdb_beside_python_scripts(tmp_path):
     build = VDB2NVDB.parent.parent
     cache = build / "CMakeCache.txt"
     if not cache.exists():
