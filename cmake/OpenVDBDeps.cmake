@@ -15,10 +15,11 @@ if (OPENVDB_INCLUDE_DIR AND OPENVDB_LIBRARY AND TBB_LIBRARY AND IMATH_LIBRARY
   add_library(nvdb::openvdb ALIAS nvdb_openvdb)
   target_include_directories(nvdb_openvdb SYSTEM INTERFACE
     "${OPENVDB_INCLUDE_DIR}" "${IMATH_INCLUDE_DIR}" "${IMATH_INCLUDE_DIR}/Imath"
-    "${BOOST_INCLUDE_DIR}" "${PNANOVDB_INCLUDE_DIR}")
+    "${BOOST_INCLUDE_DIR}" "${PNANOVDB_INCLUDE_DIR}" "${BLOSC_INCLUDE_DIR}")
   target_compile_definitions(nvdb_openvdb INTERFACE NANOVDB_USE_ZIP NANOVDB_USE_BLOSC)
   target_link_libraries(nvdb_openvdb INTERFACE
-    "${OPENVDB_LIBRARY}" "${TBB_LIBRARY}" "${IMATH_LIBRARY}" nvdb_codecs)
+    "${OPENVDB_LIBRARY}" "${TBB_LIBRARY}" "${IMATH_LIBRARY}"
+    ZLIB::ZLIB "${BLOSC_LIBRARY}") # NanoVDB's own writer/reader (ZIP, BLOSC)
 else()
   set(NVDB_HAVE_OPENVDB OFF)
   message(WARNING "OpenVDB 10 not found (apt-get install libopenvdb-dev "

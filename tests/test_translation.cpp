@@ -1,8 +1,11 @@
 /*
-    The Dr.Jit translation (include/nanovdb_drjit/pnanovdb.h) against the
-    original PNanoVDB (Debian's libnanovdb-dev, compiled here as C), read for
-    read: tile addresses, value addresses, levels and value bits must be
-    identical on every query coordinate, for every test grid, on every backend.
+    The Dr.Jit translation (include/nanovdb_drjit/pnanovdb.h) and the fast
+    readers (fast_readers.h, stencil.h) against the original PNanoVDB
+    (Debian's libnanovdb-dev, compiled here as C), read for read: tile
+    addresses, value addresses, levels and value bits must be identical on
+    every query coordinate, for every test grid, on every backend. The readers
+    are the ones the plugin uses: the loader's plan_readers() decides them and
+    nanovdb_drjit::Reader applies the plan, here as in the plugin.
 
     Backends: scalar (uint32_t) and LLVM always; CUDA only where a GPU and
     libcuda are present, otherwise the CUDA test case is reported as skipped.
@@ -12,7 +15,12 @@
 #define PNANOVDB_ADDRESS_64
 #include <nanovdb/PNanoVDB.h>
 
+#include <nanovdb_drjit/fast_readers.h>
+#include <nanovdb_drjit/layout.h>
 #include <nanovdb_drjit/pnanovdb.h>
+#include <nanovdb_drjit/stencil.h>
+#include <nanovdb_loader/reader_policy.h>
+#include <nanovdb_loader/validation.h>
 #include <drjit/jit.h>
 #include <drjit-core/jit.h>
 
@@ -25,6 +33,7 @@
 #include <vector>
 
 namespace ndr = nanovdb_drjit;
+namespace loader = nanovdb_loader;
 namespace dr = drjit;
 
 using Coord3 = std::array<int32_t, 3>;
@@ -34,11 +43,13 @@ static constexpr size_t QUERY_COUNT = 1000000;
 
 namespace {
 
-/// A test grid as the 32-bit words that both readers see
+/// A test grid as the 32-bit words that both readers see, built once for
+/// the whole test program, with the reader plan the plugin would use
 struct TestGrid {
     std::string name;
     std::vector<uint32_t> words;
     std::vector<Coord3> coords;
+    loader::ReaderPlan plan;   ///< plan_readers() of the validated grid
 };
 
 const std::vector<TestGrid> &test_grids() {
@@ -52,6 +63,8 @@ const std::vector<TestGrid> &test_grids() {
             g.words.resize((handle.size() + 3) / 4);
             std::memcpy(g.words.data(), handle.data(), handle.size());
             g.coords = nvdb_test::query_coords(*handle.grid<float>(), QUERY_COUNT, seed++);
+            g.plan = loader::plan_readers(
+                loader::validate_float_grid(name, g.words.data(), handle.size()));
             result.push_back(std::move(g));
         }
         return result;
@@ -116,52 +129,20 @@ const char *reader_name(Reader r) { return r == Reader::Faithful ? "faithful" : 
 
 /**
  * Calls fn(buf, root) with the buffer and root handle of the chosen reader on
- * the backend selected by UInt32 (JIT array, or a host pointer for scalars).
- * The fast reader falls back to the faithful root search or full offsets
- * where the grid does not qualify, as the plugin does.
+ * the backend selected by UInt32 (JIT array, or a host pointer for scalars):
+ * the plugin's path (the loader's plan, applied by nanovdb_drjit::Reader), or
+ * the same plan with the fast readers off.
  */
 template <typename UInt32, typename Fn>
 void with_reader(const TestGrid &g, Reader reader, Fn &&fn) {
-    using Int32 = dr::int32_array_t<UInt32>;
     using Buffer = std::conditional_t<dr::is_jit_v<UInt32>, UInt32, const uint32_t *>;
     Buffer buf;
     if constexpr (dr::is_jit_v<UInt32>)
         buf = dr::load<UInt32>(g.words.data(), g.words.size());
     else
         buf = g.words.data();
-    ndr::RootHandle<UInt32> root = ndr::tree_get_root(
-        buf, ndr::grid_get_tree(ndr::GridHandle<UInt32>{ dr::opaque<UInt32>(0u) }), true);
-    if (reader == Reader::Faithful)
-        return fn(buf, root);
-
-    uint32_t root_word = ndr::tree_get_root(g.words.data(),
-                                            ndr::grid_get_tree(ndr::GridHandle<uint32_t>{ 0u })).address;
-    bool compact = ndr::host::has_compact_offsets(g.words.data(), g.words.size() * 4);
-    ndr::host::RootIndex index;
-    bool indexed = ndr::host::build_root_index(g.words.data(), root_word, 1u << 20, index);
-    if (index.table.empty())
-        index.table.push_back(0u);
-
-    auto with_root = [&](const auto &b) {
-        if (!indexed)
-            return fn(b, root);
-        ndr::Coord<UInt32> bmin, bdims;
-        for (int k = 0; k < 3; ++k) {
-            bmin[k] = dr::opaque<Int32>(index.block_min[k]);
-            bdims[k] = dr::opaque<Int32>(index.block_dims[k]);
-        }
-        if constexpr (dr::is_jit_v<UInt32>) {
-            UInt32 table = dr::load<UInt32>(index.table.data(), index.table.size());
-            return fn(b, ndr::IndexedRootHandle<UInt32, UInt32>{ root.address, table, bmin, bdims });
-        } else {
-            return fn(b, ndr::IndexedRootHandle<uint32_t, const uint32_t *>{
-                             root.address, index.table.data(), bmin, bdims });
-        }
-    };
-    if (compact)
-        with_root(ndr::CompactOffsets<Buffer>{ buf });
-    else
-        with_root(buf);
+    auto r = ndr::Reader<UInt32>::from_plan(reader == Reader::Fast ? g.plan : g.plan.faithful());
+    r.apply(buf, fn);
 }
 
 /// The translation on the backend selected by UInt32
@@ -427,23 +408,148 @@ TEST_CASE("inactive lanes never read: a corrupt child offset behind a false mask
     CHECK(nonzero == 0);
 }
 
-TEST_CASE("the fast readers apply to the test grids (so the fast tests test them)") {
+namespace {
+
+/// The same grid with its leaf array moved in front of its lower-node array
+/// and every child offset rewritten: valid, but not in NanoVDB's canonical order
+TestGrid leaves_before_lower_nodes(const TestGrid &src) {
+    namespace L = ndr::layout;
+    const L::GridTypeConstants &c = L::GRID_TYPE_CONSTANTS_FLOAT;
+    TestGrid g = src;
+    g.name = src.name + "_leaves_first";
+    const uint8_t *in = reinterpret_cast<const uint8_t *>(src.words.data());
+    uint8_t *out = reinterpret_cast<uint8_t *>(g.words.data());
+    auto u64 = [](const uint8_t *p) { uint64_t v; std::memcpy(&v, p, 8); return v; };
+    auto u32 = [](const uint8_t *p) { uint32_t v; std::memcpy(&v, p, 4); return v; };
+    auto put64 = [](uint8_t *p, int64_t v) { std::memcpy(p, &v, 8); };
+    const uint64_t tree = L::GRID_SIZE;
+    const uint64_t upper = tree + u64(in + tree + L::TREE_OFF_NODE_OFFSET_UPPER),
+                   lower = tree + u64(in + tree + L::TREE_OFF_NODE_OFFSET_LOWER),
+                   leaf = tree + u64(in + tree + L::TREE_OFF_NODE_OFFSET_LEAF);
+    const uint64_t n_upper = u32(in + tree + L::TREE_OFF_NODE_COUNT_UPPER),
+                   n_lower = u32(in + tree + L::TREE_OFF_NODE_COUNT_LOWER),
+                   n_leaf = u32(in + tree + L::TREE_OFF_NODE_COUNT_LEAF);
+    REQUIRE(leaf == lower + n_lower * c.lower_size); // canonical: leaves right after
+    const uint64_t new_leaf = lower, new_lower = lower + n_leaf * c.leaf_size;
+    std::memcpy(out + new_leaf, in + leaf, n_leaf * c.leaf_size);
+    std::memcpy(out + new_lower, in + lower, n_lower * c.lower_size);
+    put64(out + tree + L::TREE_OFF_NODE_OFFSET_LEAF, int64_t(new_leaf - tree));
+    put64(out + tree + L::TREE_OFF_NODE_OFFSET_LOWER, int64_t(new_lower - tree));
+    auto rewrite = [&](uint64_t node_in, uint64_t node_out, uint64_t mask_off, uint64_t table_off,
+                       uint64_t count, uint64_t child_begin, uint64_t child_size,
+                       uint64_t new_child_begin) {
+        for (uint64_t e = 0; e < count; ++e) {
+            if (!((u32(in + node_in + mask_off + 4 * (e >> 5)) >> (e & 31)) & 1u))
+                continue;
+            const uint64_t target = uint64_t(int64_t(node_in) + int64_t(u64(in + node_in + table_off + 8 * e)));
+            const uint64_t moved = new_child_begin + (target - child_begin) / child_size * child_size;
+            put64(out + node_out + table_off + 8 * e, int64_t(moved) - int64_t(node_out));
+        }
+    };
+    for (uint64_t n = 0; n < n_upper; ++n)
+        rewrite(upper + n * c.upper_size, upper + n * c.upper_size, L::UPPER_OFF_CHILD_MASK,
+                c.upper_off_table, L::UPPER_TABLE_COUNT, lower, c.lower_size, new_lower);
+    for (uint64_t n = 0; n < n_lower; ++n)
+        rewrite(lower + n * c.lower_size, new_lower + n * c.lower_size, L::LOWER_OFF_CHILD_MASK,
+                c.lower_off_table, L::LOWER_TABLE_COUNT, leaf, c.leaf_size, new_leaf);
+    return g;
+}
+
+} // namespace
+
+TEST_CASE("the reader policy picks the fast readers for the test grids (so the fast tests test them)") {
     for (const TestGrid &g : test_grids()) {
         INFO("grid ", g.name);
-        uint32_t root_word = ndr::tree_get_root(g.words.data(),
-                                                ndr::grid_get_tree(ndr::GridHandle<uint32_t>{ 0u })).address;
-        ndr::host::RootIndex index;
-        bool indexed = ndr::host::build_root_index(g.words.data(), root_word, 1u << 20, index);
         // NanoVDB writes canonical layouts: every test grid has compact offsets
-        CHECK(ndr::host::has_compact_offsets(g.words.data(), g.words.size() * 4));
+        CHECK(g.plan.compact_offsets);
         // Only far_coords spans too many 4096^3 blocks for an index
-        CHECK(indexed == (g.name != "far_coords"));
-        MESSAGE("grid ", g.name, ": root index ", std::string(indexed ? "yes" : "no (linear search)"),
-                ", ", index.table.size(), " entries");
+        CHECK(g.plan.root_indexed == (g.name != "far_coords"));
+        MESSAGE("grid ", g.name, ": root index ",
+                std::string(g.plan.root_indexed ? "yes" : "no (linear search)"), ", ",
+                g.plan.root_table.size(), " entries (at most ",
+                loader::max_root_index_entries(g.words.size() * 4), ")");
     }
-    // A layout that is not canonical is detected: swap the lower and leaf arrays' order
-    TestGrid g = test_grids().front();
-    uint32_t tree = ndr::words(ndr::GRID_SIZE);
-    std::swap(g.words[tree + 0], g.words[tree + 2]);   // leaf offset <-> lower offset (low words)
-    CHECK_FALSE(ndr::host::has_compact_offsets(g.words.data(), g.words.size() * 4));
+    // A valid layout that is not canonical (leaves stored before the lower
+    // nodes, so lower -> leaf offsets are negative) must not get CompactOffsets;
+    // its reads through the plan still equal PNanoVDB's algorithm.
+    TestGrid g = leaves_before_lower_nodes(test_grids().front());
+    loader::ReaderPlan plan = loader::plan_readers(
+        loader::validate_float_grid("reordered", g.words.data(), g.words.size() * 4));
+    CHECK_FALSE(plan.compact_offsets);
+    CHECK(plan.root_indexed);
+    g.plan = plan;
+    Reads ref = read_pnanovdb(g);
+    compare("scalar fast (non-canonical layout)", g, ref, read_translation<uint32_t>(g, Reader::Fast));
+}
+
+TEST_CASE("layout.h: every offset and size equals PNanoVDB's") {
+    namespace L = ndr::layout;
+    CHECK(L::MAGIC_NUMBER == PNANOVDB_MAGIC_NUMBER);
+    CHECK(L::MAJOR_VERSION_NUMBER == PNANOVDB_MAJOR_VERSION_NUMBER);
+    CHECK(L::GRID_TYPE_FLOAT == PNANOVDB_GRID_TYPE_FLOAT);
+    CHECK(L::MAP_SIZE == PNANOVDB_MAP_SIZE);
+    CHECK(L::MAP_OFF_MATD == PNANOVDB_MAP_OFF_MATD);
+    CHECK(L::MAP_OFF_INVMATD == PNANOVDB_MAP_OFF_INVMATD);
+    CHECK(L::MAP_OFF_VECD == PNANOVDB_MAP_OFF_VECD);
+    CHECK(L::GRID_SIZE == PNANOVDB_GRID_SIZE);
+    CHECK(L::GRID_OFF_MAGIC == PNANOVDB_GRID_OFF_MAGIC);
+    CHECK(L::GRID_OFF_CHECKSUM == PNANOVDB_GRID_OFF_CHECKSUM);
+    CHECK(L::GRID_OFF_VERSION == PNANOVDB_GRID_OFF_VERSION);
+    CHECK(L::GRID_OFF_GRID_SIZE == PNANOVDB_GRID_OFF_GRID_SIZE);
+    CHECK(L::GRID_OFF_GRID_NAME == PNANOVDB_GRID_OFF_GRID_NAME);
+    CHECK(L::GRID_OFF_GRID_NAME + L::GRID_NAME_SIZE == PNANOVDB_GRID_OFF_MAP);
+    CHECK(L::GRID_OFF_MAP == PNANOVDB_GRID_OFF_MAP);
+    CHECK(L::GRID_OFF_VOXEL_SIZE == PNANOVDB_GRID_OFF_VOXEL_SIZE);
+    CHECK(L::GRID_OFF_GRID_CLASS == PNANOVDB_GRID_OFF_GRID_CLASS);
+    CHECK(L::GRID_OFF_GRID_TYPE == PNANOVDB_GRID_OFF_GRID_TYPE);
+    CHECK(L::TREE_SIZE == PNANOVDB_TREE_SIZE);
+    CHECK(L::TREE_OFF_NODE_OFFSET_LEAF == PNANOVDB_TREE_OFF_NODE_OFFSET_LEAF);
+    CHECK(L::TREE_OFF_NODE_OFFSET_LOWER == PNANOVDB_TREE_OFF_NODE_OFFSET_LOWER);
+    CHECK(L::TREE_OFF_NODE_OFFSET_UPPER == PNANOVDB_TREE_OFF_NODE_OFFSET_UPPER);
+    CHECK(L::TREE_OFF_NODE_OFFSET_ROOT == PNANOVDB_TREE_OFF_NODE_OFFSET_ROOT);
+    CHECK(L::TREE_OFF_NODE_COUNT_LEAF == PNANOVDB_TREE_OFF_NODE_COUNT_LEAF);
+    CHECK(L::TREE_OFF_NODE_COUNT_LOWER == PNANOVDB_TREE_OFF_NODE_COUNT_LOWER);
+    CHECK(L::TREE_OFF_NODE_COUNT_UPPER == PNANOVDB_TREE_OFF_NODE_COUNT_UPPER);
+    CHECK(L::TREE_OFF_VOXEL_COUNT == PNANOVDB_TREE_OFF_VOXEL_COUNT);
+    CHECK(L::ROOT_OFF_BBOX_MIN == PNANOVDB_ROOT_OFF_BBOX_MIN);
+    CHECK(L::ROOT_OFF_BBOX_MAX == PNANOVDB_ROOT_OFF_BBOX_MAX);
+    CHECK(L::ROOT_OFF_TABLE_SIZE == PNANOVDB_ROOT_OFF_TABLE_SIZE);
+    CHECK(L::ROOT_TILE_OFF_KEY == PNANOVDB_ROOT_TILE_OFF_KEY);
+    CHECK(L::ROOT_TILE_OFF_CHILD == PNANOVDB_ROOT_TILE_OFF_CHILD);
+    CHECK(L::ROOT_TILE_OFF_STATE == PNANOVDB_ROOT_TILE_OFF_STATE);
+    CHECK(L::UPPER_OFF_BBOX_MIN == PNANOVDB_UPPER_OFF_BBOX_MIN);
+    CHECK(L::UPPER_OFF_VALUE_MASK == PNANOVDB_UPPER_OFF_VALUE_MASK);
+    CHECK(L::UPPER_OFF_CHILD_MASK == PNANOVDB_UPPER_OFF_CHILD_MASK);
+    CHECK(L::LOWER_OFF_BBOX_MIN == PNANOVDB_LOWER_OFF_BBOX_MIN);
+    CHECK(L::LOWER_OFF_VALUE_MASK == PNANOVDB_LOWER_OFF_VALUE_MASK);
+    CHECK(L::LOWER_OFF_CHILD_MASK == PNANOVDB_LOWER_OFF_CHILD_MASK);
+    CHECK(L::LEAF_OFF_BBOX_MIN == PNANOVDB_LEAF_OFF_BBOX_MIN);
+    CHECK(L::LEAF_OFF_VALUE_MASK == PNANOVDB_LEAF_OFF_VALUE_MASK);
+    CHECK(L::UPPER_TABLE_COUNT == PNANOVDB_UPPER_TABLE_COUNT);
+    CHECK(L::LOWER_TABLE_COUNT == PNANOVDB_LOWER_TABLE_COUNT);
+    CHECK(L::LEAF_TABLE_COUNT == PNANOVDB_LEAF_TABLE_COUNT);
+
+    // The float row of pnanovdb_grid_type_constants, field by field
+    const pnanovdb_grid_type_constants_t &p = pnanovdb_grid_type_constants[PNANOVDB_GRID_TYPE_FLOAT];
+    const L::GridTypeConstants &c = *L::grid_type_constants(L::GRID_TYPE_FLOAT);
+    static_assert(sizeof(L::GridTypeConstants) == sizeof(pnanovdb_grid_type_constants_t));
+    CHECK(std::memcmp(&c, &p, sizeof(p)) == 0);
+    CHECK(c.root_size == p.root_size);
+    CHECK(c.leaf_size == p.leaf_size);
+    CHECK(L::grid_type_constants(PNANOVDB_GRID_TYPE_DOUBLE) == nullptr);
+
+    // Root keys: key_to_block inverts coord_to_key
+    for (const Coord3 &ijk : test_grids().front().coords) {
+        pnanovdb_coord_t c3 = { ijk[0], ijk[1], ijk[2] };
+        int32_t block[3];
+        L::key_to_block(pnanovdb_coord_to_key(&c3), block);
+        for (int k = 0; k < 3; ++k) {
+            // The key keeps 20 bits of each block coordinate (sign-extended back)
+            int32_t expect = int32_t(uint32_t(ijk[k] >> 12) << 12) >> 12;
+            if (block[k] != expect) {
+                INFO("ijk = (", ijk[0], ", ", ijk[1], ", ", ijk[2], "), axis ", k);
+                CHECK(block[k] == expect);
+            }
+        }
+    }
 }

@@ -5,8 +5,9 @@
 #include <mitsuba/render/volume.h>
 
 #include <nanovdb_drjit/backend_buffer.h>
-#include <nanovdb_drjit/io.h>
-#include <nanovdb_drjit/pnanovdb.h>
+#include <nanovdb_drjit/fast_readers.h>
+#include <nanovdb_drjit/stencil.h>
+#include <nanovdb_loader/load.h>
 
 #include <cstdlib>
 #include <cstring>
@@ -122,84 +123,42 @@ public:
     MI_IMPORT_BASE(Volume, update_bbox, m_to_local, m_bbox, m_channel_count)
     MI_IMPORT_TYPES()
 
-    /// The tree as 32-bit words: a JIT array, or a plain host allocation
-    using Buffer = std::conditional_t<dr::is_jit_v<Float>, UInt32,
-                                      std::unique_ptr<uint32_t[], void (*)(void *)>>;
+    /// The grid's 32-bit words on the backend: a JIT array (LLVM: mapped host
+    /// memory; CUDA: device memory), or a plain host allocation on scalars
+    using GridBuffer = std::conditional_t<dr::is_jit_v<Float>, UInt32,
+                                          std::unique_ptr<uint32_t[], void (*)(void *)>>;
+    using Reader = nanovdb_drjit::Reader<UInt32>;
 
-    NanoVDBVolume(const Properties &props)
-        : Base(props), m_buffer(make_empty_buffer()) {
-        std::string_view filter = props.get<std::string_view>("filter_type", "trilinear");
-        if (filter == "nearest")
-            m_nearest = true;
-        else if (filter == "trilinear")
-            m_nearest = false;
-        else
-            Throw("Invalid filter type \"%s\", must be one of: \"nearest\" or "
-                  "\"trilinear\"!", filter);
-
-        m_use_grid_transform = props.get<bool>("use_grid_transform", false);
-
-        std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
-        if (invalid == "clamp")
-            m_clamp_invalid = true;
-        else if (invalid != "error")
-            Throw("Invalid value \"%s\" for invalid_values, must be one of: \"error\" or "
-                  "\"clamp\"!", invalid);
-
+    NanoVDBVolume(const Properties &props) : Base(props), m_grid(empty_grid_buffer()) {
         fs::path file_path =
             file_resolver()->resolve(props.get<std::string_view>("filename"));
         m_filename = file_path.string();
+
+        std::string_view filter = props.get<std::string_view>("filter_type", "trilinear");
+        if (filter == "nearest")
+            m_nearest = true;
+        else if (filter != "trilinear")
+            Throw("nanovdbvolume: \"%s\": invalid filter_type \"%s\", must be one of: "
+                  "\"nearest\" or \"trilinear\"", m_filename, filter);
+
+        std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
+        if (invalid == "clamp")
+            m_invalid_values = nanovdb_loader::InvalidValues::Clamp;
+        else if (invalid != "error")
+            Throw("nanovdbvolume: \"%s\": invalid value \"%s\" for invalid_values, must be "
+                  "one of: \"error\" or \"clamp\"", m_filename, invalid);
+
+        m_use_grid_transform = props.get<bool>("use_grid_transform", false);
         std::string selector(props.get<std::string_view>("grid", ""));
 
-        namespace io = nanovdb_drjit::io;
-        io::FloatGridInfo info;
-        try {
-            std::vector<io::GridEntry> grids = io::list_grids(m_filename);
-            const io::GridEntry &entry = io::select_grid(m_filename, grids, selector);
-            info = load(entry);
-        } catch (const io::Error &e) {
-            Throw("nanovdbvolume: %s", e.what());
-        }
-
-        m_grid_name = info.name;
-        m_background = info.background;
-        m_max = info.value_max;
-        m_max_opaque = dr::opaque<Float>(m_max);
-
-        // Active index box [min, max] (inclusive). An empty grid reads as the
-        // single voxel at the origin, i.e. its background everywhere.
-        ScalarVector3i bmin(info.bbox_min[0], info.bbox_min[1], info.bbox_min[2]),
-                       bmax(info.bbox_max[0], info.bbox_max[1], info.bbox_max[2]);
-        if (info.empty) {
-            bmin = ScalarVector3i(0);
-            bmax = ScalarVector3i(0);
-        }
-        m_min_scalar = bmin;
-        // Extent as 64-bit arithmetic: max - min + 1 overflows int32 for boxes
-        // spanning more than 2^31 voxels.
-        for (int k = 0; k < 3; ++k) {
-            int64_t extent = int64_t(bmax[k]) - int64_t(bmin[k]) + 1;
-            if (extent > std::numeric_limits<int32_t>::max())
-                Throw("nanovdbvolume: \"%s\": grid \"%s\" spans %lld voxels along "
-                      "axis %d, more than a Mitsuba volume resolution can hold.",
-                      m_filename, m_grid_name, (long long) extent, k);
-            m_resolution[k] = (int32_t) extent;
-        }
-
-        // Per-file values reach kernels as opaque variables, so that loading
-        // another file does not recompile them.
-        m_root = dr::opaque<UInt32>(info.root_word);
-        for (int k = 0; k < 3; ++k) {
-            m_min[k]  = dr::opaque<Int32>(bmin[k]);
-            m_dims[k] = dr::opaque<Float>((ScalarFloat) m_resolution[k]);
-        }
-
+        nanovdb_loader::GridSummary summary = load_grid(selector);
+        set_index_box(summary);
         if (m_use_grid_transform)
-            setup_grid_transform(info);
-
+            set_grid_transform(summary);
         m_channel_count = 1;
-        Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s], %llu bytes, max %f",
-            m_filename, m_grid_name, bmin, bmax, (unsigned long long) m_buffer_bytes, m_max);
+        Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
+            m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
+            m_grid_bytes, m_max_host);
     }
 
     // =====================================================================
@@ -235,11 +194,11 @@ public:
               "channel, not 6", m_filename, m_grid_name);
     }
 
-    ScalarFloat max() const override { return m_max; }
+    ScalarFloat max() const override { return m_max_host; }
 
-    void max_per_channel(ScalarFloat *out) const override { out[0] = m_max; }
+    void max_per_channel(ScalarFloat *out) const override { out[0] = m_max_host; }
 
-    ScalarVector3i resolution() const override { return m_resolution; }
+    ScalarVector3i resolution() const override { return m_resolution_host; }
 
     std::string to_string() const override {
         std::ostringstream oss;
@@ -250,14 +209,14 @@ public:
             << "  use_grid_transform = " << m_use_grid_transform << "," << std::endl
             << "  to_local = " << string::indent(m_to_local, 13) << "," << std::endl
             << "  bbox = " << string::indent(m_bbox) << "," << std::endl
-            << "  index_min = " << m_min_scalar << "," << std::endl
-            << "  dimensions = " << m_resolution << "," << std::endl
-            << "  background = " << m_background << "," << std::endl
-            << "  max = " << m_max << "," << std::endl
-            << "  bytes = " << m_buffer_bytes << "," << std::endl
+            << "  index_min = " << m_index_min_host << "," << std::endl
+            << "  dimensions = " << m_resolution_host << "," << std::endl
+            << "  background = " << m_background_host << "," << std::endl
+            << "  max = " << m_max_host << "," << std::endl
+            << "  bytes = " << m_grid_bytes << "," << std::endl
             << "  backend_bytes = " << m_backend_bytes << "," << std::endl
-            << "  reader = " << (m_root_indexed ? "root index" : "root search")
-            << (m_compact_offsets ? ", 32-bit child offsets" : ", 64-bit child offsets")
+            << "  reader = " << (m_reader.root_indexed ? "root index" : "root search")
+            << (m_reader.compact_offsets ? ", 32-bit child offsets" : ", 64-bit child offsets")
             << std::endl
             << "]";
         return oss.str();
@@ -267,146 +226,70 @@ public:
 
 private:
     // =====================================================================
-    //  Spaces. Local: the unit cube over the active box (default) or the
-    //  grid's world space (use_grid_transform). Index: NanoVDB's integer
-    //  voxel coordinates, values at integer positions. Kernels compute the
-    //  index position *relative to the box minimum* in floating point and add
-    //  the integer minimum last.
+    //  Lookups, by space. Local: the unit cube over the active box (default)
+    //  or the grid's world space (use_grid_transform). Index: NanoVDB's
+    //  integer voxel coordinates, values at integer positions. Kernels
+    //  compute the index position *relative to the box minimum* in floating
+    //  point and add the integer minimum last, so grids far from the origin
+    //  keep full precision.
     // =====================================================================
 
-    /// Value at local point of `it` (nearest or trilinear)
+    /// Value at the local point of `it`: local -> index, then the filter
     Float lookup(const Interaction3f &it, Mask active) const {
         MI_MASK_ARGUMENT(active);
-        namespace ndr = nanovdb_drjit;
-
-        Vector3f rel;      // index position relative to m_min
-        Vector3i base;     // integer cell (relative to m_min)
+        Vector3f rel; // index position relative to m_index_min
         if (!m_use_grid_transform) {
             Point3f p = m_to_local * it.p;
             // Same arithmetic as Dr.Jit's texture (gridvolume), so both plugins
             // pick the same voxels and weights.
-            if (m_nearest) {
-                base = index_floor(p * m_dims);
-                return value_at(index_add(base, m_min), active);
-            }
-            rel = dr::fmadd(p, m_dims, -.5f);
+            if (m_nearest)
+                return value_at(index_add(index_floor(p * m_resolution), m_index_min), active);
+            rel = dr::fmadd(p, m_resolution, -.5f);
         } else {
             Point4f p = m_index_from_world * Point4f(it.p.x(), it.p.y(), it.p.z(), 1.f);
             rel = Vector3f(p.x(), p.y(), p.z());
-            if (m_nearest) {
-                base = index_floor(rel + .5f);
-                return value_at(index_add(base, m_min), active);
-            }
+            if (m_nearest)
+                return value_at(index_add(index_floor(rel + .5f), m_index_min), active);
         }
+        return trilinear_at(rel, active);
+    }
 
-        base = index_floor(rel);
+    /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal)
+    Float value_at(const Vector3i &ijk, Mask active) const {
+        namespace ndr = nanovdb_drjit;
+        ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
+        return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+            return ndr::root_get_value(buf, root, c, active);
+        });
+    }
+
+    /// Trilinear interpolation at index position m_index_min + rel: the 8
+    /// corners in one traversal (root_get_stencil_addresses), summed in the
+    /// order and with the weights of Dr.Jit's texture
+    Float trilinear_at(const Vector3f &rel, Mask active) const {
+        namespace ndr = nanovdb_drjit;
+        Vector3i base = index_floor(rel);
         Vector3f w1 = rel - Vector3f(base),
                  w0 = 1.f - w1;
-        Vector3i ijk0 = index_add(base, m_min);
-
-        // The 8 corners in one traversal (see root_get_stencil_addresses),
-        // summed in the order and with the weights of Dr.Jit's texture
+        Vector3i ijk0 = index_add(base, m_index_min);
         ndr::Coord<UInt32> c(ijk0.x(), ijk0.y(), ijk0.z());
-        dr::Array<UInt32, 8> address = with_reader([&](const auto &buf, const auto &root) {
-            return ndr::root_get_stencil_addresses(buf, root, c, active);
-        });
+        dr::Array<UInt32, 8> address =
+            m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+                return ndr::root_get_stencil_addresses(buf, root, c, active);
+            });
         Float result = 0.f;
         for (uint32_t corner = 0; corner < 8; ++corner) {
-            int32_t bit[3] = { (int32_t) (corner & 1), (int32_t) ((corner >> 1) & 1),
-                               (int32_t) ((corner >> 2) & 1) };
             Float weight = 1.f;
             for (uint32_t k = 0; k < 3; ++k)
-                weight = weight * (bit[k] ? w1[k] : w0[k]);
-            result = dr::fmadd(ndr::read_float(buffer(), address[corner], active), weight,
+                weight = weight * (((corner >> k) & 1) ? w1[k] : w0[k]);
+            result = dr::fmadd(ndr::read_float(grid_words(), address[corner], active), weight,
                                result);
         }
         // The rounded weights can sum to slightly more than 1, so the result
         // could exceed the largest corner by a few ulps (measured: 3 ulps on
         // a level set whose values sit at its maximum). The heterogeneous
         // medium needs max() to be a true bound, so clamp.
-        return dr::minimum(result, m_max_opaque);
-    }
-
-    /**
-     * The policy for NaN, infinite and negative values, applied on the host
-     * before the grid reaches the backend (see the invalid_values parameter).
-     * Scans only grids whose validation already found such values.
-     */
-    void check_values(void *data, size_t bytes, const std::string &grid,
-                      nanovdb_drjit::io::FloatGridInfo &info) {
-        namespace io = nanovdb_drjit::io;
-        bool non_finite = info.nan_count > 0 || info.inf_count > 0,
-             negative = info.value_min < 0.f;
-        if (!non_finite && !negative)
-            return;
-        io::ValueScan scan = io::scan_values(m_filename, data, bytes);
-        if (!m_clamp_invalid) {
-            if (non_finite)
-                Throw("nanovdbvolume: \"%s\": grid \"%s\" contains %s; only finite "
-                      "values can be rendered. Set invalid_values=\"clamp\" to replace "
-                      "NaN by 0, +Inf by the largest finite value and -Inf and negative "
-                      "values by 0.", m_filename, grid, io::describe_invalid_values(scan));
-            Log(Warn, "\"%s\": grid \"%s\" contains %llu negative values (first: %s); "
-                "a negative density makes no physical sense. Set "
-                "invalid_values=\"clamp\" to replace them by 0.", m_filename, grid,
-                (unsigned long long) scan.negative_count,
-                io::describe_location(scan.first_negative));
-            return;
-        }
-        io::SanitizeResult r = io::sanitize_values(m_filename, data, bytes);
-        Log(Warn, "\"%s\": grid \"%s\": replaced %llu NaN by 0, %llu +Inf by the largest "
-            "finite value, %llu -Inf and %llu negative values by 0 (invalid_values=clamp).",
-            m_filename, grid, (unsigned long long) r.nan, (unsigned long long) r.posinf,
-            (unsigned long long) r.neginf, (unsigned long long) r.negative);
-        info = io::validate_float_grid(m_filename, data, bytes);
-    }
-
-    /**
-     * Decides, once per file, which of the translation's readers the kernels
-     * use (traced as one code path per file, never as a runtime branch):
-     * CompactOffsets where every child offset fits the low word, and an
-     * O(1) root tile index where it is small (at most 0.4 % of the grid).
-     */
-    void prepare_readers(const uint32_t *words, size_t bytes,
-                         const nanovdb_drjit::io::FloatGridInfo &info) {
-        namespace ndr = nanovdb_drjit;
-        m_compact_offsets = ndr::host::has_compact_offsets(words, bytes);
-        ndr::host::RootIndex index;
-        uint64_t max_entries = std::max<uint64_t>(64, bytes / 1024);
-        m_root_indexed = ndr::host::build_root_index(words, info.root_word, max_entries, index);
-        if (!m_root_indexed)
-            return;
-        if (index.table.empty())
-            index.table.push_back(0u);
-        m_root_table_host = std::move(index.table);
-        if constexpr (dr::is_jit_v<Float>)
-            m_root_table = dr::load<UInt32>(m_root_table_host.data(), m_root_table_host.size());
-        for (int k = 0; k < 3; ++k) {
-            m_block_min[k] = dr::opaque<Int32>(index.block_min[k]);
-            m_block_dims[k] = dr::opaque<Int32>(index.block_dims[k]);
-        }
-        if constexpr (dr::is_jit_v<Float>)
-            std::vector<uint32_t>().swap(m_root_table_host); // the JIT array holds it now
-    }
-
-    /// Calls fn(buffer, root) with the reader chosen by prepare_readers()
-    template <typename Fn> decltype(auto) with_reader(Fn &&fn) const {
-        namespace ndr = nanovdb_drjit;
-        auto with_root = [&](const auto &buf) -> decltype(auto) {
-            if (m_root_indexed) {
-                if constexpr (dr::is_jit_v<Float>)
-                    return fn(buf, ndr::IndexedRootHandle<UInt32, UInt32>{
-                                       m_root, m_root_table, m_block_min, m_block_dims });
-                else
-                    return fn(buf, ndr::IndexedRootHandle<UInt32, const uint32_t *>{
-                                       m_root, m_root_table_host.data(), m_block_min,
-                                       m_block_dims });
-            }
-            return fn(buf, ndr::RootHandle<UInt32>{ m_root });
-        };
-        if (m_compact_offsets)
-            return with_root(ndr::CompactOffsets<std::decay_t<decltype(buffer())>>{ buffer() });
-        return with_root(buffer());
+        return dr::minimum(result, m_max);
     }
 
     /// floor() to int32 for positions relative to the box minimum. Points
@@ -424,25 +307,109 @@ private:
                                                dr::reinterpret_array<Vector3u>(b));
     }
 
-    /// The buffer as the translation reads it: a JIT array or a host pointer
-    decltype(auto) buffer() const {
+    /// The grid as the translation reads it: a JIT array or a host pointer
+    decltype(auto) grid_words() const {
         if constexpr (dr::is_jit_v<Float>)
-            return (const UInt32 &) m_buffer;
+            return (const UInt32 &) m_grid;
         else
-            return static_cast<const uint32_t *>(m_buffer.get());
+            return static_cast<const uint32_t *>(m_grid.get());
     }
 
-    /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal)
-    Float value_at(const Vector3i &ijk, Mask active) const {
-        namespace ndr = nanovdb_drjit;
-        ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
-        return with_reader([&](const auto &buf, const auto &root) {
-            return ndr::root_get_value(buf, root, c, active);
-        });
+    // =====================================================================
+    //  Loading: only the selected grid's bytes, decoded once (the loader's
+    //  decode_grid: read -> validate -> value policy -> reader plan) into
+    //  one exact-size allocation that the backend owns
+    //  (include/nanovdb_drjit/backend_buffer.h). No host copy is kept, and
+    //  none is made on LLVM.
+    // =====================================================================
+
+    static GridBuffer empty_grid_buffer() {
+        if constexpr (dr::is_jit_v<Float>)
+            return UInt32();
+        else
+            return GridBuffer(nullptr, std::free);
+    }
+
+    /// Selects, decodes and hands the grid to the backend; sets m_grid,
+    /// m_reader, the value range and the names. Loader errors name the file.
+    nanovdb_loader::GridSummary load_grid(const std::string &selector) {
+        namespace loader = nanovdb_loader;
+        namespace backend = nanovdb_drjit::backend;
+        try {
+            std::vector<loader::GridEntry> grids = loader::list_grids(m_filename);
+            const loader::GridEntry &entry = loader::select_grid(m_filename, grids, selector);
+            m_grid_name = entry.name;
+            m_grid_bytes = (size_t) entry.grid_size;
+            m_backend_bytes = ((m_grid_bytes + 63) / 64) * 64;
+            size_t word_count = m_backend_bytes / 4;
+
+            // One host block: the final buffer on scalar and LLVM variants
+            // (LLVM kernels read host memory in place), the staging buffer on CUDA.
+            std::unique_ptr<uint32_t[], void (*)(void *)> host(nullptr, std::free);
+            void *ptr = nullptr;
+            if (posix_memalign(&ptr, 64, m_backend_bytes) != 0 || !ptr)
+                Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
+                      m_filename, m_grid_bytes, m_grid_name);
+            host.reset((uint32_t *) ptr);
+
+            loader::DecodedGrid decoded = loader::decode_grid(
+                m_filename, entry, host.get(), m_backend_bytes, m_invalid_values);
+            for (const std::string &warning : decoded.warnings)
+                Log(Warn, "%s", warning);
+            m_reader = Reader::from_plan(decoded.plan);
+            m_max_host = decoded.grid.values().max;
+            m_max = dr::opaque<Float>(m_max_host);
+            loader::GridSummary summary = decoded.grid.summary();
+            m_grid_name = summary.name; // the grid's own name (GridData)
+
+            if constexpr (!dr::is_jit_v<Float>) {
+                m_grid = std::move(host);
+            } else if constexpr (dr::backend_v<Float> == JitBackend::LLVM) {
+                m_grid = UInt32::steal(backend::map_host_words(host.release(), word_count));
+            } else {
+                try {
+                    m_grid = UInt32::steal(backend::upload_cuda_words(host.get(), word_count));
+                } catch (const std::exception &e) {
+                    Throw("nanovdbvolume: \"%s\": grid \"%s\" (%zu bytes): %s", m_filename,
+                          m_grid_name, m_grid_bytes, e.what());
+                }
+            }
+            return summary;
+        } catch (const loader::Error &e) {
+            Throw("nanovdbvolume: %s", e.what());
+        }
+    }
+
+    /// The active index box [min, max] (inclusive) becomes the volume's
+    /// extent. An empty grid reads as the single voxel at the origin, i.e.
+    /// its background everywhere.
+    void set_index_box(const nanovdb_loader::GridSummary &summary) {
+        m_background_host = summary.background;
+        ScalarVector3i bmin(summary.bbox_min[0], summary.bbox_min[1], summary.bbox_min[2]),
+                       bmax(summary.bbox_max[0], summary.bbox_max[1], summary.bbox_max[2]);
+        if (summary.empty)
+            bmin = bmax = ScalarVector3i(0);
+        m_index_min_host = bmin;
+        // Extent as 64-bit arithmetic: max - min + 1 overflows int32 for boxes
+        // spanning more than 2^31 voxels.
+        for (int k = 0; k < 3; ++k) {
+            int64_t extent = int64_t(bmax[k]) - int64_t(bmin[k]) + 1;
+            if (extent > std::numeric_limits<int32_t>::max())
+                Throw("nanovdbvolume: \"%s\": grid \"%s\" spans %lld voxels along "
+                      "axis %d, more than a Mitsuba volume resolution can hold.",
+                      m_filename, m_grid_name, (long long) extent, k);
+            m_resolution_host[k] = (int32_t) extent;
+        }
+        // Per-file values reach kernels as opaque variables, so that loading
+        // another file does not recompile them.
+        for (int k = 0; k < 3; ++k) {
+            m_index_min[k]  = dr::opaque<Int32>(bmin[k]);
+            m_resolution[k] = dr::opaque<Float>((ScalarFloat) m_resolution_host[k]);
+        }
     }
 
     /// With use_grid_transform: local space = the grid's world space.
-    void setup_grid_transform(const nanovdb_drjit::io::FloatGridInfo &info) {
+    void set_grid_transform(const nanovdb_loader::GridSummary &summary) {
         // index = inv_mat * (world - vec); relative to the box minimum:
         // rel = inv_mat * world - (inv_mat * vec + min), composed with
         // to_local in double precision and rounded once.
@@ -451,24 +418,19 @@ private:
         for (int r = 0; r < 3; ++r) {
             double t = 0.0;
             for (int c = 0; c < 3; ++c) {
-                index_from_grid(r, c) = info.map_inv[3 * r + c];
-                t += info.map_inv[3 * r + c] * info.map_vec[c];
+                index_from_grid(r, c) = summary.map_inv[3 * r + c];
+                t += summary.map_inv[3 * r + c] * summary.map_vec[c];
             }
-            index_from_grid(r, 3) = -t - (double) m_min_scalar[r];
+            index_from_grid(r, 3) = -t - (double) m_index_min_host[r];
         }
         Matrix4d to_local = dr::identity<Matrix4d>();
         for (int r = 0; r < 4; ++r)
             for (int c = 0; c < 4; ++c)
                 to_local(r, c) = (double) m_to_local.matrix(r, c);
         Matrix4d m = index_from_grid * to_local;
-
-        ScalarMatrix4f mf;
         for (int r = 0; r < 4; ++r)
             for (int c = 0; c < 4; ++c)
-                mf(r, c) = (float) m(r, c);
-        for (int r = 0; r < 4; ++r)
-            for (int c = 0; c < 4; ++c)
-                m_index_from_world(r, c) = dr::opaque<Float>(mf(r, c));
+                m_index_from_world(r, c) = dr::opaque<Float>((ScalarFloat) m(r, c));
 
         // World-space bounds: the voxels' cells [min - 0.5, max + 0.5] of the
         // index box, mapped by the grid transform and then by to_world.
@@ -477,104 +439,42 @@ private:
         for (int corner = 0; corner < 8; ++corner) {
             double idx[3], world[3];
             for (int k = 0; k < 3; ++k)
-                idx[k] = (corner >> k & 1) ? m_min_scalar[k] + m_resolution[k] - 0.5
-                                           : m_min_scalar[k] - 0.5;
+                idx[k] = (corner >> k & 1)
+                             ? m_index_min_host[k] + m_resolution_host[k] - 0.5
+                             : m_index_min_host[k] - 0.5;
             for (int r = 0; r < 3; ++r) {
-                world[r] = info.map_vec[r];
+                world[r] = summary.map_vec[r];
                 for (int c = 0; c < 3; ++c)
-                    world[r] += info.map_mat[3 * r + c] * idx[c];
+                    world[r] += summary.map_mat[3 * r + c] * idx[c];
             }
             m_bbox.expand(to_world * ScalarPoint3f((float) world[0], (float) world[1],
                                                    (float) world[2]));
         }
     }
 
-    // =====================================================================
-    //  Loading: only the selected grid's bytes, into one exact-size
-    //  allocation that the backend owns (include/nanovdb_drjit/
-    //  backend_buffer.h). No host copy is kept, and none is made on LLVM.
-    // =====================================================================
-
-    static Buffer make_empty_buffer() {
-        if constexpr (dr::is_jit_v<Float>)
-            return UInt32();
-        else
-            return Buffer(nullptr, std::free);
-    }
-
-    /// Read -> validate -> value policy -> reader set-up, into `words`
-    /// (a block of `alloc_bytes`, the grid's bytes zero-padded to 64)
-    nanovdb_drjit::io::FloatGridInfo decode(const nanovdb_drjit::io::GridEntry &entry,
-                                            uint32_t *words, size_t bytes,
-                                            size_t alloc_bytes) {
-        namespace io = nanovdb_drjit::io;
-        std::memset((uint8_t *) words + bytes, 0, alloc_bytes - bytes);
-        io::read_grid(m_filename, entry, words);
-        io::FloatGridInfo info = io::validate_float_grid(m_filename, words, bytes);
-        check_values(words, bytes, entry.name, info);
-        prepare_readers(words, bytes, info);
-        return info;
-    }
-
-    nanovdb_drjit::io::FloatGridInfo load(const nanovdb_drjit::io::GridEntry &entry) {
-        namespace io = nanovdb_drjit::io;
-        namespace backend = nanovdb_drjit::backend;
-        size_t bytes = (size_t) entry.grid_size,
-               alloc_bytes = ((bytes + 63) / 64) * 64, words = alloc_bytes / 4;
-        m_buffer_bytes = bytes;
-
-        // One host block: the final buffer on scalar and LLVM variants (LLVM
-        // kernels read host memory in place), the staging buffer on CUDA.
-        std::unique_ptr<uint32_t[], void (*)(void *)> host(nullptr, std::free);
-        void *ptr = nullptr;
-        if (posix_memalign(&ptr, 64, alloc_bytes) != 0 || !ptr)
-            Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
-                  m_filename, bytes, entry.name);
-        host.reset((uint32_t *) ptr);
-        io::FloatGridInfo info = decode(entry, host.get(), bytes, alloc_bytes);
-
-        if constexpr (!dr::is_jit_v<Float>) {
-            m_buffer = std::move(host);
-        } else if constexpr (dr::backend_v<Float> == JitBackend::LLVM) {
-            m_buffer = UInt32::steal(backend::map_host_words(host.release(), words));
-        } else {
-            try {
-                m_buffer = UInt32::steal(backend::upload_cuda_words(host.get(), words));
-            } catch (const std::exception &e) {
-                Throw("nanovdbvolume: \"%s\": grid \"%s\" (%zu bytes): %s", m_filename,
-                      entry.name, bytes, e.what());
-            }
-        }
-        m_backend_bytes = alloc_bytes;
-        return info;
-    }
-
 private:
-    Buffer m_buffer;
-    UInt32 m_root;             // word address of the root node
-    Vector3i m_min;            // active box minimum (opaque on JIT backends)
-    Vector3f m_dims;           // active box extent, as float (opaque)
-    Matrix4f m_index_from_world; // use_grid_transform: world -> index - min
-    Float m_max_opaque;        // max(), the clamp of trilinear results
-    UInt32 m_root_table;       // O(1) root tile index (JIT variants)
-    std::vector<uint32_t> m_root_table_host; // ... (scalar variants)
-    Vector3i m_block_min, m_block_dims;      // ... its box of 4096^3 blocks
-    bool m_root_indexed = false;
-    bool m_compact_offsets = false;
+    // Backend (JIT variables, opaque per file; plain values on scalars)
+    GridBuffer m_grid;            // the grid's 32-bit words
+    Reader m_reader;              // readers chosen by the loader's plan
+    Vector3i m_index_min;         // active box minimum
+    Vector3f m_resolution;        // active box extent in voxels, as Float
+    Matrix4f m_index_from_world;  // use_grid_transform: world -> index - min
+    Float m_max;                  // max(), the clamp of trilinear results
 
-    ScalarVector3i m_min_scalar;
-    ScalarVector3i m_resolution;
-    ScalarFloat m_max = 0.f;
-    ScalarFloat m_background = 0.f;
-    size_t m_buffer_bytes = 0;  // the grid's bytes
-    size_t m_backend_bytes = 0; // what the backend holds for it (padded to 64 B)
+    // Host
+    ScalarVector3i m_index_min_host;
+    ScalarVector3i m_resolution_host;
+    ScalarFloat m_max_host = 0.f;
+    ScalarFloat m_background_host = 0.f;
+    size_t m_grid_bytes = 0;      // the grid's bytes
+    size_t m_backend_bytes = 0;   // what the backend holds for it (padded to 64 B)
     bool m_nearest = false;
     bool m_use_grid_transform = false;
-    bool m_clamp_invalid = false;
+    nanovdb_loader::InvalidValues m_invalid_values = nanovdb_loader::InvalidValues::Error;
     std::string m_filename, m_grid_name;
 
-    MI_TRAVERSE_CB(Base, m_buffer, m_root, m_min, m_dims, m_index_from_world, m_max_opaque,
-                   m_root_table, m_block_min, m_block_dims)
+    MI_TRAVERSE_CB(Base, m_grid, m_reader.root, m_reader.root_table, m_reader.block_min,
+                   m_reader.block_dims, m_index_min, m_resolution, m_index_from_world, m_max)
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)

@@ -1,21 +1,23 @@
-// libFuzzer harness over the .nvdb loader (include/nanovdb_drjit/io.h), the
-// validator, the value scan/sanitizer and a batch of scalar lookups with the
-// Dr.Jit translation of PNanoVDB (include/nanovdb_drjit/pnanovdb.h, read only).
+// libFuzzer harness over the .nvdb loader (src/loader/: container, validation,
+// value policy, reader policy) and a batch of scalar lookups with the Dr.Jit
+// translation of PNanoVDB through the plugin's readers (include/nanovdb_drjit/).
 //
 // One input = the bytes of a file. It is written to a memfd and read through
-// its /proc/self/fd path, exactly as the plugin reads a file:
+// its /proc/self/fd path, exactly as the plugin reads a file, and decoded by
+// the plugin's own decode path (nanovdb_loader::decode_grid):
 //   list_grids -> select_grid("") -> read_grid -> validate_float_grid
-//   -> scan_values -> (on a copy) sanitize_values + validate again
-//   -> lookups: root_get_value and root_get_stencil_addresses at coordinates
-//      derived from the input (bbox corners, node boundaries, raw int32s).
+//   -> value policy "error" (and, on a copy, "clamp": sanitize_values)
+//   -> plan_readers -> lookups through nanovdb_drjit::Reader with that plan
+//      and with PNanoVDB's own algorithm: root_get_value and
+//      root_get_stencil_addresses at coordinates derived from the input
+//      (bbox corners, node boundaries, raw int32s).
 // Oracles, besides ASan/UBSan:
-//  * the decoded grid sits at the end of a mapping followed by 16 GiB of
-//    PROT_NONE address space (all that a 32-bit word address can reach), so
-//    any read past the buffer faults, however far;
+//  * the decoded grid sits in a GuardedBuffer (tests/guarded_buffer.h): any
+//    read past it faults, however far;
 //  * every value address is checked to lie inside the buffer;
 //  * every lookup is compared with PNanoVDB itself (C, 64-bit addresses):
 //    same value address and level; each stencil corner equals a traversal;
-//  * io::Error is the only exception allowed.
+//  * nanovdb_loader::Error is the only exception allowed.
 //
 // Build: cmake -DNVDB_BUILD_FUZZ=ON with clang (tests/fuzz/CMakeLists.txt).
 // Run:   fuzz_nvdb CORPUS_DIR [SEED_DIRS...] -max_total_time=30
@@ -24,13 +26,19 @@
 #define PNANOVDB_ADDRESS_64
 #include <nanovdb/PNanoVDB.h>
 
-#include <nanovdb_drjit/io.h>
+#include <nanovdb_drjit/fast_readers.h>
 #include <nanovdb_drjit/pnanovdb.h>
+#include <nanovdb_drjit/stencil.h>
+#include <nanovdb_loader/load.h>
+
+#include "../guarded_buffer.h"
 
 #include <sys/mman.h>
 #include <unistd.h>
 
 #include <array>
+#include <cmath>
+#include <optional>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -38,7 +46,7 @@
 #include <string>
 #include <vector>
 
-namespace nio = nanovdb_drjit::io;
+namespace nio = nanovdb_loader;
 namespace ndr = nanovdb_drjit;
 namespace dr = drjit;
 
@@ -49,31 +57,6 @@ namespace {
                  (unsigned long long) b);
     std::abort();
 }
-
-/// A region of `bytes` (rounded up to 32) that ends exactly where 16 GiB + a
-/// page of PROT_NONE address space begins.
-struct GuardedBuffer {
-    uint8_t *base = nullptr, *data = nullptr;
-    size_t total = 0;
-    explicit GuardedBuffer(uint64_t bytes) {
-        const size_t page = size_t(sysconf(_SC_PAGESIZE));
-        const size_t rounded = size_t((bytes + 31) / 32 * 32);
-        const size_t head = (rounded + page - 1) / page * page;
-        const size_t guard = (size_t(1) << 34) + page;
-        total = head + guard;
-        void *p = mmap(nullptr, total, PROT_NONE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE,
-                       -1, 0);
-        if (p == MAP_FAILED) die("mmap of the guard region failed", total);
-        base = static_cast<uint8_t *>(p);
-        if (head && mprotect(base, head, PROT_READ | PROT_WRITE) != 0)
-            die("mprotect failed", head);
-        data = base + head - rounded; // 32-byte aligned (page - multiple of 32)
-        std::memset(data, 0, rounded);
-    }
-    ~GuardedBuffer() { munmap(base, total); }
-    GuardedBuffer(const GuardedBuffer &) = delete;
-    GuardedBuffer &operator=(const GuardedBuffer &) = delete;
-};
 
 /// The input as a file: a memfd, named by its /proc/self/fd path.
 struct MemFile {
@@ -103,14 +86,16 @@ struct Reader { // bytes of the input, consumed from the end, for coordinates
     }
 };
 
-void lookups(const uint8_t *buf, uint64_t bytes, const nio::FloatGridInfo &info,
+/// Lookups through one reader (the plan's or the faithful one) against PNanoVDB
+template <typename Root, typename Buffer>
+void lookups(const Buffer &buf, const Root &root, const nio::ValidatedGrid &grid,
              const uint8_t *input, size_t input_size) {
-    const uint32_t *words = reinterpret_cast<const uint32_t *>(buf);
-    const uint64_t word_count = (bytes + 3) / 4;
+    const uint32_t *words = grid.words();
+    const uint64_t word_count = (grid.bytes() + 3) / 4;
     pnanovdb_buf_t pbuf;
     pbuf.data = const_cast<uint32_t *>(words);
-    pnanovdb_root_handle_t proot = { uint64_t(info.root_word) * 4 };
-    ndr::RootHandle<uint32_t> root{ info.root_word };
+    pnanovdb_root_handle_t proot = { uint64_t(grid.summary().root_word) * 4 };
+    const nio::GridSummary &info = grid.summary();
 
     std::vector<std::array<int32_t, 3>> coords;
     const int32_t *lo = info.bbox_min, *hi = info.bbox_max;
@@ -138,7 +123,7 @@ void lookups(const uint8_t *buf, uint64_t bytes, const nio::FloatGridInfo &info,
         // One traversal: translation vs PNanoVDB
         ndr::Coord<uint32_t> ijk(c[0], c[1], c[2]);
         ndr::AddressAndLevel<uint32_t> al = ndr::root_get_value_address_and_level(
-            words, root, ijk, true);
+            buf, root, ijk, true);
         pnanovdb_coord_t pijk = { c[0], c[1], c[2] };
         pnanovdb_uint32_t plevel = 0;
         pnanovdb_address_t paddr = pnanovdb_root_get_value_address_and_level(
@@ -146,7 +131,7 @@ void lookups(const uint8_t *buf, uint64_t bytes, const nio::FloatGridInfo &info,
         if (al.address >= word_count) die("value address outside the buffer", al.address, word_count);
         if (uint64_t(al.address) * 4 != paddr.byte_offset || al.level != plevel)
             die("translation and PNanoVDB disagree", uint64_t(al.address) * 4, paddr.byte_offset);
-        const float v = ndr::root_get_value(words, root, ijk, true);
+        const float v = ndr::root_get_value(buf, root, ijk, true);
         float pv = pnanovdb_read_float(pbuf, paddr);
         if (std::memcmp(&v, &pv, 4) != 0) die("values differ");
 
@@ -154,7 +139,7 @@ void lookups(const uint8_t *buf, uint64_t bytes, const nio::FloatGridInfo &info,
         // INT32_MAX in both readers: int32 wrap-around, done in uint32 here)
         std::array<int32_t, 3> c0 = c;
         ndr::Coord<uint32_t> ijk0(c0[0], c0[1], c0[2]);
-        dr::Array<uint32_t, 8> st = ndr::root_get_stencil_addresses(words, root, ijk0, true);
+        dr::Array<uint32_t, 8> st = ndr::root_get_stencil_addresses(buf, root, ijk0, true);
         for (uint32_t corner = 0; corner < 8; ++corner) {
             auto plus = [](int32_t v, uint32_t b) { return int32_t(uint32_t(v) + b); };
             pnanovdb_coord_t q = { plus(c0[0], corner & 1), plus(c0[1], (corner >> 1) & 1),
@@ -178,27 +163,47 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
         // 1100:1 compression can ask for much; keep within libFuzzer's RSS limit
         if (entry.grid_size > (uint64_t(256) << 20))
             return 0;
-        GuardedBuffer buf(entry.grid_size);
-        nio::read_grid(file.path, entry, buf.data);
-        const nio::FloatGridInfo info = nio::validate_float_grid(file.path, buf.data, entry.grid_size);
-        const nio::ValueScan scan = nio::scan_values(file.path, buf.data, entry.grid_size);
-        if (scan.nan_count != info.nan_count ||
-            scan.posinf_count + scan.neginf_count != info.inf_count)
-            die("scan_values and validate_float_grid count differently", scan.nan_count,
-                info.nan_count);
-        (void) nio::describe_invalid_values(scan);
-        lookups(buf.data, entry.grid_size, info, data, size);
+        nvdb_test::GuardedBuffer buf(entry.grid_size);
 
-        // Sanitize a copy; the result validates and holds no NaN/Inf/negative
-        GuardedBuffer copy(entry.grid_size);
-        std::memcpy(copy.data, buf.data, size_t(entry.grid_size));
-        nio::sanitize_values(file.path, copy.data, entry.grid_size);
-        const nio::ValueScan after = nio::scan_values(file.path, copy.data, entry.grid_size);
-        if (after.nan_count || after.posinf_count || after.neginf_count || after.negative_count)
-            die("sanitize_values left invalid values", after.nan_count, after.negative_count);
-        const nio::FloatGridInfo info2 = nio::validate_float_grid(file.path, copy.data, entry.grid_size);
-        if (!(info2.value_max >= 0.f) || std::isinf(info2.value_max))
-            die("sanitized value_max is not finite and >= 0");
+        // The plugin's decode path with invalid_values="clamp" on a copy first
+        // (the "error" policy may refuse the grid): sanitizing leaves no NaN,
+        // Inf or negative value, and a finite max() >= 0
+        {
+            nvdb_test::GuardedBuffer copy(entry.grid_size);
+            nio::DecodedGrid clamped = nio::decode_grid(file.path, entry, copy.data(), copy.size(),
+                                                        nio::InvalidValues::Clamp);
+            const nio::ValueStats &v = clamped.grid.values();
+            if (v.nan_count || v.posinf_count || v.neginf_count || v.negative_count)
+                die("clamp left invalid values", v.nan_count, v.negative_count);
+            if (!(v.max >= 0.f) || std::isinf(v.max))
+                die("clamped max is not finite and >= 0");
+            // ... and a second validation of the sanitized bytes agrees
+            const nio::ValidatedGrid again =
+                nio::validate_float_grid(file.path, copy.data(), entry.grid_size);
+            if (std::memcmp(&again.values().max, &v.max, 4) != 0 ||
+                again.values().value_count != v.value_count)
+                die("sanitized statistics differ from a fresh validation");
+        }
+
+        std::optional<nio::DecodedGrid> decoded;
+        try {
+            decoded.emplace(nio::decode_grid(file.path, entry, buf.data(), buf.size(),
+                                             nio::InvalidValues::Error));
+        } catch (const nio::Error &) {
+            // refused (maybe for its values only): validate alone, look up anyway
+            nio::ValidatedGrid grid = nio::validate_float_grid(file.path, buf.data(), entry.grid_size);
+            nio::ReaderPlan plan = nio::plan_readers(grid);
+            decoded.emplace(nio::DecodedGrid{ std::move(grid), std::move(plan), {} });
+        }
+        const nio::ValueScan scan = nio::scan_values(decoded->grid);
+        (void) nio::describe_invalid_values(scan);
+
+        const uint32_t *words = decoded->grid.words();
+        for (const nio::ReaderPlan &plan : { decoded->plan, decoded->plan.faithful() }) {
+            ndr::Reader<uint32_t>::from_plan(plan).apply(words, [&](const auto &b, const auto &root) {
+                lookups(b, root, decoded->grid, data, size);
+            });
+        }
     } catch (const nio::Error &) {
         // the only failure allowed: a clear error
     }

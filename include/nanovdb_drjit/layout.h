@@ -1,0 +1,185 @@
+/*
+    nanovdb_drjit/layout.h -- the byte layout of a NanoVDB grid, in one place
+
+    Every offset and size that the device traversal (pnanovdb.h and the fast
+    readers) and the host loader (src/loader/) use, under PNanoVDB's own
+    names (nanovdb/PNanoVDB.h, NanoVDB 32.4, Copyright Contributors to the
+    OpenVDB Project, SPDX-License-Identifier: MPL-2.0): PNANOVDB_GRID_OFF_*
+    becomes GRID_OFF_*, pnanovdb_grid_type_constants[] becomes
+    grid_type_constants(). No offset is written anywhere else.
+
+    Plain C++17, no Dr.Jit: the loader includes it too. All offsets are in
+    bytes, relative to the start of the structure they belong to. The numbers
+    hold for every NanoVDB 32.x version; tests/test_translation.cpp checks each
+    one against PNanoVDB's macros and table.
+
+    A new value type is a new row of grid_type_constants() (and its value
+    decoding), not new offsets elsewhere.
+*/
+
+#pragma once
+
+#include <cstdint>
+
+namespace nanovdb_drjit::layout {
+
+// ---- Magics and version (PNANOVDB_MAGIC_*, PNANOVDB_MAJOR_VERSION_NUMBER) ----
+
+/// "NanoVDB0": file/segment header and grid magic up to NanoVDB 32.7
+static constexpr uint64_t MAGIC_NUMBER = 0x304244566f6e614eull;
+/// "NanoVDB1": grid magic (GridData.mMagic) from 32.8 on
+static constexpr uint64_t MAGIC_GRID   = 0x314244566f6e614eull;
+/// "NanoVDB2": file/segment header magic from 32.8 on
+static constexpr uint64_t MAGIC_FILE   = 0x324244566f6e614eull;
+static constexpr uint32_t MAJOR_VERSION_NUMBER = 32;
+
+/// Version word: major << 21 | minor << 10 | patch
+constexpr uint32_t version_major(uint32_t version) { return version >> 21; }
+
+// ---- Grid types (PNANOVDB_GRID_TYPE_*) ----------------------------------------
+
+static constexpr uint32_t GRID_TYPE_FLOAT = 1;
+
+// ---- Map (PNANOVDB_MAP_*) --------------------------------------------------------
+
+static constexpr uint32_t MAP_SIZE        = 264;
+static constexpr uint32_t MAP_OFF_MATD    = 88;   ///< 3x3 double, row-major, index -> world
+static constexpr uint32_t MAP_OFF_INVMATD = 160;  ///< its inverse
+static constexpr uint32_t MAP_OFF_VECD    = 232;  ///< 3 doubles, the translation
+
+// ---- Grid (PNANOVDB_GRID_*): GridData, at the start of every grid -------------
+
+static constexpr uint32_t GRID_SIZE                = 672;
+static constexpr uint32_t GRID_OFF_MAGIC           = 0;
+static constexpr uint32_t GRID_OFF_CHECKSUM        = 8;
+static constexpr uint32_t GRID_OFF_VERSION         = 16;
+static constexpr uint32_t GRID_OFF_GRID_SIZE       = 32;
+static constexpr uint32_t GRID_OFF_GRID_NAME       = 40;
+static constexpr uint32_t GRID_NAME_SIZE           = 256; ///< PNANOVDB_GRID_OFF_MAP - ..._GRID_NAME
+static constexpr uint32_t GRID_OFF_MAP             = 296;
+static constexpr uint32_t GRID_OFF_VOXEL_SIZE      = 608;
+static constexpr uint32_t GRID_OFF_GRID_CLASS      = 632;
+static constexpr uint32_t GRID_OFF_GRID_TYPE       = 636;
+
+// ---- Tree (PNANOVDB_TREE_*): TreeData, right after GridData ---------------------
+// Node offsets are uint64 bytes relative to the tree; counts are uint32.
+
+static constexpr uint32_t TREE_SIZE                  = 64;
+static constexpr uint32_t TREE_OFF_NODE_OFFSET_LEAF  = 0;
+static constexpr uint32_t TREE_OFF_NODE_OFFSET_LOWER = 8;
+static constexpr uint32_t TREE_OFF_NODE_OFFSET_UPPER = 16;
+static constexpr uint32_t TREE_OFF_NODE_OFFSET_ROOT  = 24;
+static constexpr uint32_t TREE_OFF_NODE_COUNT_LEAF   = 32;
+static constexpr uint32_t TREE_OFF_NODE_COUNT_LOWER  = 36;
+static constexpr uint32_t TREE_OFF_NODE_COUNT_UPPER  = 40;
+static constexpr uint32_t TREE_OFF_VOXEL_COUNT       = 56;
+
+/// The smallest possible grid: GridData + TreeData
+static constexpr uint32_t GRID_HEADER_SIZE = GRID_SIZE + TREE_SIZE;
+
+// ---- Root, root tiles, internal nodes, leaves (the value-independent fields) --
+
+static constexpr uint32_t ROOT_OFF_BBOX_MIN   = 0;   ///< int32[3]
+static constexpr uint32_t ROOT_OFF_BBOX_MAX   = 12;  ///< int32[3], inclusive
+static constexpr uint32_t ROOT_OFF_TABLE_SIZE = 24;  ///< uint32 tile count
+
+static constexpr uint32_t ROOT_TILE_OFF_KEY   = 0;   ///< uint64, see coord_to_key
+static constexpr uint32_t ROOT_TILE_OFF_CHILD = 8;   ///< int64 bytes, relative to the root
+static constexpr uint32_t ROOT_TILE_OFF_STATE = 16;
+
+static constexpr uint32_t UPPER_OFF_BBOX_MIN  = 0;
+static constexpr uint32_t UPPER_OFF_VALUE_MASK = 32;
+static constexpr uint32_t UPPER_OFF_CHILD_MASK = 4128;
+static constexpr uint32_t LOWER_OFF_BBOX_MIN  = 0;
+static constexpr uint32_t LOWER_OFF_VALUE_MASK = 32;
+static constexpr uint32_t LOWER_OFF_CHILD_MASK = 544;
+static constexpr uint32_t LEAF_OFF_BBOX_MIN   = 0;
+static constexpr uint32_t LEAF_OFF_VALUE_MASK = 16;
+
+// ---- Node geometry (NanoVDB's 5-4-3 tree) -----------------------------------------
+// An upper node has 32^3 entries of 128^3 voxels, a lower node 16^3 entries
+// of 8^3 voxels, a leaf 8^3 voxels. A root tile covers 4096^3 voxels.
+
+static constexpr uint32_t UPPER_LOG2_DIM = 5, LOWER_LOG2_DIM = 4, LEAF_LOG2_DIM = 3;
+static constexpr uint32_t UPPER_TABLE_COUNT = 1u << (3 * UPPER_LOG2_DIM); // 32768
+static constexpr uint32_t LOWER_TABLE_COUNT = 1u << (3 * LOWER_LOG2_DIM); // 4096
+static constexpr uint32_t LEAF_TABLE_COUNT  = 1u << (3 * LEAF_LOG2_DIM);  // 512
+/// log2 of the voxels an entry of each level spans per axis: leaf voxel 0,
+/// lower entry 3, upper entry 7, root tile 12
+static constexpr uint32_t LOWER_ENTRY_LOG2 = LEAF_LOG2_DIM,
+                          UPPER_ENTRY_LOG2 = LOWER_ENTRY_LOG2 + LOWER_LOG2_DIM,
+                          ROOT_TILE_LOG2   = UPPER_ENTRY_LOG2 + UPPER_LOG2_DIM;
+
+/// NANOVDB_DATA_ALIGNMENT: every node starts 32-byte aligned within the grid
+/// and every node size is a multiple of 32
+static constexpr uint32_t NODE_ALIGNMENT = 32;
+
+// ---- Per value type: pnanovdb_grid_type_constants_t ------------------------------
+
+/// PNanoVDB: pnanovdb_grid_type_constants_t (the fields in its order)
+struct GridTypeConstants {
+    uint32_t root_off_background, root_off_min, root_off_max, root_off_ave,
+             root_off_stddev, root_size, value_stride_bits, table_stride,
+             root_tile_off_value, root_tile_size, upper_off_min, upper_off_max,
+             upper_off_ave, upper_off_stddev, upper_off_table, upper_size,
+             lower_off_min, lower_off_max, lower_off_ave, lower_off_stddev,
+             lower_off_table, lower_size, leaf_off_min, leaf_off_max,
+             leaf_off_ave, leaf_off_stddev, leaf_off_table, leaf_size;
+};
+
+/// PNanoVDB: pnanovdb_grid_type_constants[PNANOVDB_GRID_TYPE_FLOAT]
+static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_FLOAT = {
+    28, 32, 36, 40, 44, 64, 32, 8, 20, 32,
+    8224, 8228, 8232, 8236, 8256, 270400,
+    1056, 1060, 1064, 1068, 1088, 33856,
+    80, 84, 88, 92, 96, 2144
+};
+
+/// The row of a grid type, at compile time (device code)
+template <uint32_t GridType> struct grid_type_traits;
+template <> struct grid_type_traits<GRID_TYPE_FLOAT> {
+    static constexpr const GridTypeConstants &constants = GRID_TYPE_CONSTANTS_FLOAT;
+};
+
+/// The row of a grid type, at run time (host code); nullptr: not supported
+constexpr const GridTypeConstants *grid_type_constants(uint32_t grid_type) {
+    return grid_type == GRID_TYPE_FLOAT ? &GRID_TYPE_CONSTANTS_FLOAT : nullptr;
+}
+
+// The tables fill their nodes exactly, and every node keeps the alignment
+static_assert(GRID_TYPE_CONSTANTS_FLOAT.upper_off_table +
+              UPPER_TABLE_COUNT * GRID_TYPE_CONSTANTS_FLOAT.table_stride ==
+              GRID_TYPE_CONSTANTS_FLOAT.upper_size);
+static_assert(GRID_TYPE_CONSTANTS_FLOAT.lower_off_table +
+              LOWER_TABLE_COUNT * GRID_TYPE_CONSTANTS_FLOAT.table_stride ==
+              GRID_TYPE_CONSTANTS_FLOAT.lower_size);
+static_assert(GRID_TYPE_CONSTANTS_FLOAT.leaf_off_table +
+              LEAF_TABLE_COUNT * GRID_TYPE_CONSTANTS_FLOAT.value_stride_bits / 8 ==
+              GRID_TYPE_CONSTANTS_FLOAT.leaf_size);
+static_assert(GRID_TYPE_CONSTANTS_FLOAT.upper_size % NODE_ALIGNMENT == 0 &&
+              GRID_TYPE_CONSTANTS_FLOAT.lower_size % NODE_ALIGNMENT == 0 &&
+              GRID_TYPE_CONSTANTS_FLOAT.leaf_size % NODE_ALIGNMENT == 0 &&
+              GRID_TYPE_CONSTANTS_FLOAT.root_size % NODE_ALIGNMENT == 0 &&
+              GRID_TYPE_CONSTANTS_FLOAT.root_tile_size % NODE_ALIGNMENT == 0);
+
+// ---- Root keys (host side; the device computes keys in pnanovdb.h) ----------------
+
+/// The inverse of PNanoVDB's pnanovdb_coord_to_key: the 4096^3 block (ijk >> 12,
+/// arithmetic shift) whose root tile has this key. Keys pack three 21-bit
+/// fields, x in the top bits; each is the block coordinate's low 20 bits
+/// (sign-extended here).
+inline void key_to_block(uint64_t key, int32_t block[3]) {
+    for (int axis = 0; axis < 3; ++axis) {
+        uint32_t field = uint32_t((key >> (21 * (2 - axis))) & 0x1FFFFFu);
+        block[axis] = int32_t(field << 12) >> 12;
+    }
+}
+
+/// The first voxel of the block of key_to_block(key) (ijk with low 12 bits 0)
+inline void key_to_origin(uint64_t key, int32_t origin[3]) {
+    for (int axis = 0; axis < 3; ++axis)
+        origin[axis] =
+            int32_t(uint32_t((key >> (21 * (2 - axis))) & 0x1FFFFFu) << ROOT_TILE_LOG2);
+}
+
+} // namespace nanovdb_drjit::layout

@@ -1,0 +1,120 @@
+// nanovdb_loader/validation.h -- is this buffer a grid the traversal can trust?
+//
+// validate_float_grid() checks a decoded grid buffer so that the PNanoVDB
+// traversal (root -> upper -> lower -> leaf) of any coordinate never leaves
+// it, and summarises it in the same pass: its header fields (GridSummary) and
+// every value a lookup can return (ValueStats). Its result, ValidatedGrid, is
+// the only way to say "validated": every later step (value policy, reader
+// policy, upload) takes one, so a grid is validated exactly once and its
+// values are read exactly once here.
+//
+// What is required:
+//  * magic "NanoVDB0"/"NanoVDB1", major version 32, grid type float (the
+//    types with a row in layout.h), GridData.mGridSize within the buffer;
+//  * the grid/tree header, the root with its tile table and the three node
+//    arrays inside the grid, 32-byte aligned and disjoint (NanoVDB writes them
+//    back to back; overlapping regions would let one node's bytes be read as
+//    a node of another level);
+//  * every child offset (root tiles, upper and lower tables) lands exactly on
+//    a node of the level below, so a child can never be its own parent, the
+//    root, or a node of the wrong level, and the traversal's fixed depth
+//    allows no loop.
+// Every node array is visited once: O(nodes), no recursion.
+//
+// Which values (ValueStats): the background, root tiles without child,
+// upper/lower table entries whose child bit is 0, and all 512 values of
+// every leaf (active or not) -- every value a lookup can return, plus values
+// in nodes that no root tile reaches (a lookup never returns those, but they
+// bound max(), so they are counted too). Order (for "first"): background,
+// root tiles in table order, upper nodes, lower nodes, leaves, each in array
+// order, entries in table order: the order of the bytes in a NanoVDB-written
+// buffer.
+#pragma once
+
+#include <nanovdb_loader/container.h>
+
+#include <cstdint>
+#include <limits>
+#include <string>
+
+namespace nanovdb_loader {
+
+/// The grid's header fields, as validation read them
+struct GridSummary {
+    uint32_t grid_type = 0;
+    uint32_t grid_class = 0;
+    std::string name;
+    uint32_t root_word = 0;                ///< byte offset of the root node / 4
+    uint32_t root_tile_count = 0;
+    int32_t  bbox_min[3] = {}, bbox_max[3] = {}; ///< root's active index bbox, inclusive
+    bool     empty = false;                ///< bbox_min > bbox_max on some axis
+    float    background = 0.f;
+    double   map_mat[9] = {}, map_inv[9] = {}, map_vec[3] = {}; ///< index -> world, row-major
+    double   voxel_size[3] = {};
+    uint32_t node_count[3] = {};           ///< leaf, lower, upper
+    uint64_t node_begin[3] = {};           ///< byte offset of each node array (leaf, lower, upper)
+    uint64_t active_voxel_count = 0;
+};
+
+/// Every value a lookup can return (see "Which values" above), summarised
+struct ValueStats {
+    static constexpr uint64_t NONE = std::numeric_limits<uint64_t>::max();
+
+    /// min / max over every value but NaN (+-Inf included); NaN if every
+    /// value is NaN. `max` is what the medium's majorant is built from.
+    float min = 0.f, max = 0.f;
+    /// min / max over the finite values (+Inf / -Inf if there are none)
+    float finite_min = std::numeric_limits<float>::infinity();
+    float finite_max = -std::numeric_limits<float>::infinity();
+    uint64_t value_count = 0;
+    uint64_t nan_count = 0;      ///< NaN (any payload, either sign)
+    uint64_t posinf_count = 0;   ///< +Inf
+    uint64_t neginf_count = 0;   ///< -Inf
+    uint64_t negative_count = 0; ///< finite and < 0 (-0.0 is not negative)
+    /// Byte offsets in the buffer of the first NaN, infinite and negative
+    /// value, in the order above; NONE if there is none
+    uint64_t first_nan = NONE, first_inf = NONE, first_negative = NONE;
+
+    uint64_t inf_count() const { return posinf_count + neginf_count; }
+    bool all_finite() const { return nan_count == 0 && inf_count() == 0; }
+};
+
+/**
+ * A grid buffer that validate_float_grid() accepted. It does not own the
+ * bytes: it is a view of the caller's buffer, valid while that buffer lives,
+ * and the values may change only through sanitize_values() (values.h),
+ * which keeps the statistics true.
+ */
+class ValidatedGrid {
+public:
+    const std::string &path() const { return m_path; }
+    const uint8_t *data() const { return m_data; }
+    const uint32_t *words() const { return reinterpret_cast<const uint32_t *>(m_data); }
+    /// The buffer's bytes (the grid may be followed by more grids in it)
+    uint64_t bytes() const { return m_bytes; }
+    const GridSummary &summary() const { return m_summary; }
+    const ValueStats &values() const { return m_values; }
+
+private:
+    friend ValidatedGrid validate_float_grid(const std::string &, void *, uint64_t);
+    friend ValidatedGrid validate_float_grid(const std::string &, const void *, uint64_t);
+    friend struct ValueRewriter;
+    ValidatedGrid() = default;
+
+    std::string m_path;
+    uint8_t *m_data = nullptr;
+    bool m_writable = false;   ///< validated from a mutable buffer (sanitize_values may write)
+    uint64_t m_bytes = 0;
+    GridSummary m_summary;
+    ValueStats m_values;
+};
+
+/// Validates a float grid buffer (its first grid, when it holds several) and
+/// summarises it; throws Error, naming `path` and the problem. `data` must be
+/// 4-byte aligned (the traversal reads 32-bit words).
+ValidatedGrid validate_float_grid(const std::string &path, void *data, uint64_t bytes);
+
+/// The same for a read-only buffer: sanitize_values() refuses the result.
+ValidatedGrid validate_float_grid(const std::string &path, const void *data, uint64_t bytes);
+
+} // namespace nanovdb_loader

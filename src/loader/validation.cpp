@@ -1,0 +1,322 @@
+// src/loader/validation.cpp -- validate_float_grid() (see validation.h), in
+// four steps: the grid header, the regions of the tree (node arrays, root,
+// disjointness), then one walk over the tree that checks every child offset
+// and accumulates the values.
+
+#include <nanovdb_loader/validation.h>
+
+#include "detail.h"
+#include "value_stats.h"
+
+#include <string>
+
+namespace nanovdb_loader {
+
+namespace {
+
+using namespace detail;
+
+/// A node array of the tree: where it lies in the buffer
+struct NodeArray {
+    const char *name;
+    uint64_t offset, count, node_size; ///< offset: relative to the tree
+    uint64_t begin = 0;                ///< byte offset in the buffer
+
+    uint64_t end() const { return begin + count * node_size; }
+};
+
+/// Where the parts of the tree lie, once checked
+struct TreeRegions {
+    uint64_t grid_end;            ///< GridData.mGridSize
+    uint64_t root;                ///< byte offset of the root node
+    uint64_t table_size;          ///< root tiles
+    NodeArray leaf, lower, upper;
+};
+
+/// Step 1: magic, version, type and size of the grid; returns mGridSize
+uint64_t check_header(const std::string &path, const uint8_t *buf, uint64_t bytes,
+                      std::string &name) {
+    if (bytes >= kMaxGridBytes)
+        fail(path, "grid buffer of " + std::to_string(bytes) +
+                       " bytes is 16 GiB or more: beyond the reader's 32-bit word addresses");
+    if (buf == nullptr || bytes < layout::GRID_HEADER_SIZE)
+        fail(path, "grid buffer of " + std::to_string(bytes) +
+                       " bytes is too small: a grid needs at least 736 bytes "
+                       "(672-byte GridData + 64-byte TreeData)");
+    const uint64_t magic = load<uint64_t>(buf + layout::GRID_OFF_MAGIC);
+    if (is_byte_swapped_magic(magic))
+        fail(path, "grid has a byte-swapped magic " + describe_magic(magic) +
+                       ": only little-endian grids are supported");
+    if (magic != layout::MAGIC_NUMBER && magic != layout::MAGIC_GRID)
+        fail(path, "not a NanoVDB grid: magic " + describe_magic(magic) +
+                       ", expected \"NanoVDB0\" or \"NanoVDB1\"");
+    const uint32_t version = load<uint32_t>(buf + layout::GRID_OFF_VERSION);
+    if (version_major(version) != layout::MAJOR_VERSION_NUMBER)
+        fail(path, "grid version " + version_string(version) +
+                       "; only major version 32 is supported");
+    const uint32_t grid_type = load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE);
+    name = fixed_string(buf + layout::GRID_OFF_GRID_NAME, layout::GRID_NAME_SIZE);
+    if (grid_type != layout::GRID_TYPE_FLOAT)
+        fail(path, "grid \"" + name + "\" has type " + grid_type_name(grid_type) +
+                       ", but only float grids are supported (supported types: float)");
+    const uint64_t end = load<uint64_t>(buf + layout::GRID_OFF_GRID_SIZE);
+    if (end > bytes)
+        fail(path, "GridData.mGridSize = " + std::to_string(end) +
+                       " bytes is larger than the " + std::to_string(bytes) + "-byte buffer");
+    if (end < layout::GRID_HEADER_SIZE)
+        fail(path, "GridData.mGridSize = " + std::to_string(end) +
+                       " bytes is smaller than a grid's 736-byte header");
+    return end;
+}
+
+/// Step 2: the node arrays and the root with its tile table lie inside the
+/// grid, aligned, and do not overlap each other or the header
+TreeRegions check_regions(const std::string &path, const uint8_t *buf, uint64_t end,
+                          const layout::GridTypeConstants &c) {
+    const uint64_t tree = layout::GRID_SIZE;
+    const uint8_t *t = buf + tree;
+    TreeRegions g{ end, 0, 0,
+                   { "leaf", load<uint64_t>(t + layout::TREE_OFF_NODE_OFFSET_LEAF),
+                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_LEAF), c.leaf_size },
+                   { "lower", load<uint64_t>(t + layout::TREE_OFF_NODE_OFFSET_LOWER),
+                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_LOWER), c.lower_size },
+                   { "upper", load<uint64_t>(t + layout::TREE_OFF_NODE_OFFSET_UPPER),
+                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_UPPER), c.upper_size } };
+    for (NodeArray *l : { &g.leaf, &g.lower, &g.upper }) {
+        if (l->count == 0)
+            continue; // offset unused (writers leave it 0 or point at the end)
+        const uint64_t room = end - tree;
+        if (l->offset > room || l->count * l->node_size > room - l->offset)
+            fail(path, std::string(l->name) + " node array (" + std::to_string(l->count) +
+                           " nodes of " + std::to_string(l->node_size) +
+                           " bytes at tree offset " + std::to_string(l->offset) +
+                           ") does not fit in the " + std::to_string(end) + "-byte grid");
+        l->begin = tree + l->offset;
+        if (l->begin % layout::NODE_ALIGNMENT != 0)
+            fail(path, std::string(l->name) + " node array at byte " +
+                           std::to_string(l->begin) + " is not 32-byte aligned");
+    }
+
+    // Root node and its tile table.
+    const uint64_t root_off = load<uint64_t>(t + layout::TREE_OFF_NODE_OFFSET_ROOT);
+    if (root_off > end - tree || c.root_size > end - tree - root_off)
+        fail(path, "root node offset " + std::to_string(root_off) +
+                       " (relative to the tree at byte 672) lies outside the " +
+                       std::to_string(end) + "-byte grid");
+    g.root = tree + root_off;
+    if (g.root % layout::NODE_ALIGNMENT != 0)
+        fail(path, "root node at byte " + std::to_string(g.root) + " is not 32-byte aligned");
+    g.table_size = load<uint32_t>(buf + g.root + layout::ROOT_OFF_TABLE_SIZE);
+    if (g.table_size > (end - g.root - c.root_size) / c.root_tile_size)
+        fail(path, "root tile table of " + std::to_string(g.table_size) +
+                       " tiles (table_size; root at byte " + std::to_string(g.root) +
+                       ") extends past the end of the " + std::to_string(end) + "-byte grid");
+
+    // The header, the root with its tile table and the three node arrays are
+    // disjoint (NanoVDB writes them back to back). Were they allowed to
+    // overlap, one node's bytes would also be read as a node of another level
+    // or as the root: a child offset could then point at its own parent, or a
+    // leaf's values be read as child offsets. Lookups could not leave the
+    // buffer even so (every node a child offset reaches is checked in step
+    // 3), but no writer produces such a grid, so it is reported as corrupt.
+    struct Region { const char *name; uint64_t begin, end; };
+    const Region regions[] = {
+        { "grid and tree header", 0, layout::GRID_HEADER_SIZE },
+        { "root node and its tile table", g.root,
+          g.root + c.root_size + g.table_size * c.root_tile_size },
+        { "upper node array", g.upper.begin, g.upper.end() },
+        { "lower node array", g.lower.begin, g.lower.end() },
+        { "leaf node array", g.leaf.begin, g.leaf.end() },
+    };
+    auto span = [](const Region &x) {
+        return "[" + std::to_string(x.begin) + ", " + std::to_string(x.end) + ")";
+    };
+    for (size_t a = 0; a < 5; ++a)
+        for (size_t b = a + 1; b < 5; ++b) {
+            const Region &x = regions[a], &y = regions[b];
+            if (x.begin == x.end || y.begin == y.end)
+                continue; // a level without nodes occupies nothing
+            if (x.begin < y.end && y.begin < x.end)
+                fail(path, std::string("the ") + y.name + " " + span(y) + " overlaps the " +
+                               x.name + " " + span(x));
+        }
+    return g;
+}
+
+/**
+ * Step 3: one walk over the tree in buffer order. Every child offset must
+ * point exactly at a node of the level below; every value that is not a
+ * child goes to the accumulator.
+ */
+class TreeWalk {
+public:
+    TreeWalk(const std::string &path, const uint8_t *buf, const TreeRegions &g,
+             const layout::GridTypeConstants &c)
+        : m_path(path), m_buf(buf), m_g(g), m_c(c) {}
+
+    ValueStats run() {
+        const uint8_t *r = m_buf + m_g.root;
+        m_values.add(load<float>(r + m_c.root_off_background), m_g.root + m_c.root_off_background);
+        root_tiles();
+        internal_nodes(m_g.upper, m_g.lower, layout::UPPER_OFF_CHILD_MASK, m_c.upper_off_table,
+                       layout::UPPER_TABLE_COUNT);
+        internal_nodes(m_g.lower, m_g.leaf, layout::LOWER_OFF_CHILD_MASK, m_c.lower_off_table,
+                       layout::LOWER_TABLE_COUNT);
+        leaves();
+        return m_values.finish();
+    }
+
+private:
+    /// Root tiles: PNanoVDB follows a non-zero child, else reads the tile value
+    void root_tiles() {
+        for (uint64_t i = 0; i < m_g.table_size; ++i) {
+            const uint64_t tile = m_g.root + m_c.root_size + i * m_c.root_tile_size;
+            const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
+            if (child == 0) {
+                m_values.add(load<float>(m_buf + tile + m_c.root_tile_off_value),
+                             tile + m_c.root_tile_off_value);
+                continue;
+            }
+            check_child(m_g.upper, m_g.root, child, [&] {
+                return "root tile " + std::to_string(i) + " (key " +
+                       std::to_string(load<uint64_t>(m_buf + tile + layout::ROOT_TILE_OFF_KEY)) +
+                       ")";
+            });
+        }
+    }
+
+    /// Internal nodes: each child-mask bit selects a child offset (relative
+    /// to the node) or, when clear, a tile value in the same table entry
+    void internal_nodes(const NodeArray &level, const NodeArray &below, uint64_t mask_off,
+                        uint64_t table_off, uint64_t table_count) {
+        for (uint64_t n = 0; n < level.count; ++n) {
+            const uint64_t node = level.begin + n * level.node_size;
+            for (uint64_t w = 0; w < table_count / 32; ++w) {
+                const uint32_t mask = load<uint32_t>(m_buf + node + mask_off + 4 * w);
+                for (uint64_t b = 0; b < 32; ++b) {
+                    const uint64_t k = w * 32 + b,
+                                   entry = node + table_off + k * m_c.table_stride;
+                    if (!(mask & (uint32_t(1) << b))) {
+                        m_values.add(load<float>(m_buf + entry), entry);
+                        continue;
+                    }
+                    check_child(below, node, load<int64_t>(m_buf + entry), [&] {
+                        return std::string(level.name) + " node " + std::to_string(n) +
+                               " (byte " + std::to_string(node) + ") table entry " +
+                               std::to_string(k);
+                    });
+                }
+            }
+        }
+    }
+
+    /// Leaves hold almost all values: a vectorizable pass per leaf
+    void leaves() {
+        for (uint64_t n = 0; n < m_g.leaf.count; ++n) {
+            const uint64_t table = m_g.leaf.begin + n * m_c.leaf_size + m_c.leaf_off_table;
+            m_values.add_run<layout::LEAF_TABLE_COUNT>(m_buf + table, table);
+        }
+    }
+
+    /// `child` (relative to `from`) must point exactly at a node of `level`.
+    /// `who` is a callable returning the parent's description: built only for
+    /// a message (millions of children are checked in a large grid).
+    template <typename Who>
+    void check_child(const NodeArray &level, uint64_t from, int64_t child, const Who &who) {
+        const uint64_t end = m_g.grid_end, array_end = level.end();
+        if (level.count != 0 && child >= -int64_t(end) && child <= int64_t(end)) {
+            const int64_t t = int64_t(from) + child; // |from|, |child| <= 2^34: no overflow
+            if (t >= int64_t(level.begin) && uint64_t(t) < array_end &&
+                (uint64_t(t) - level.begin) % level.node_size == 0)
+                return; // the common case, without building any message
+        }
+        const std::string msg_head = who() + " has child offset " + std::to_string(child);
+        if (level.count == 0)
+            fail(m_path, msg_head + ", but the grid has no " + level.name + " nodes");
+        // Signed range check without overflow: target = from + child.
+        if ((child < 0 && uint64_t(-(child + 1)) + 1 > from) ||
+            (child >= 0 && uint64_t(child) > end - from))
+            fail(m_path, msg_head + ": outside the " + std::to_string(end) + "-byte grid");
+        const uint64_t target = child < 0 ? from - (uint64_t(-(child + 1)) + 1)
+                                          : from + uint64_t(child);
+        if (target < level.begin || target >= array_end)
+            fail(m_path, msg_head + " (byte " + std::to_string(target) + "): outside the " +
+                             level.name + " node array [" + std::to_string(level.begin) +
+                             ", " + std::to_string(array_end) + ")");
+        if ((target - level.begin) % level.node_size != 0)
+            fail(m_path, msg_head + " (byte " + std::to_string(target) +
+                             "): misaligned, not at a " + level.name +
+                             " node boundary (array at byte " + std::to_string(level.begin) +
+                             ", stride " + std::to_string(level.node_size) + ")");
+    }
+
+    const std::string &m_path;
+    const uint8_t *m_buf;
+    const TreeRegions &m_g;
+    const layout::GridTypeConstants &m_c;
+    ValueAccumulator m_values;
+};
+
+/// Step 4: the header fields the rest of the pipeline needs
+GridSummary summarize(const uint8_t *buf, const TreeRegions &g, const std::string &name,
+                      const layout::GridTypeConstants &c) {
+    GridSummary s;
+    const uint8_t *t = buf + layout::GRID_SIZE, *r = buf + g.root;
+    s.grid_type = load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE);
+    s.grid_class = load<uint32_t>(buf + layout::GRID_OFF_GRID_CLASS);
+    s.name = name;
+    s.root_word = uint32_t(g.root / 4);
+    s.root_tile_count = uint32_t(g.table_size);
+    for (int i = 0; i < 3; ++i) {
+        s.bbox_min[i] = load<int32_t>(r + layout::ROOT_OFF_BBOX_MIN + 4 * i);
+        s.bbox_max[i] = load<int32_t>(r + layout::ROOT_OFF_BBOX_MAX + 4 * i);
+    }
+    s.empty = s.bbox_min[0] > s.bbox_max[0] || s.bbox_min[1] > s.bbox_max[1] ||
+              s.bbox_min[2] > s.bbox_max[2];
+    s.background = load<float>(r + c.root_off_background);
+    const uint8_t *map = buf + layout::GRID_OFF_MAP;
+    for (int i = 0; i < 9; ++i) {
+        s.map_mat[i] = load<double>(map + layout::MAP_OFF_MATD + 8 * i);
+        s.map_inv[i] = load<double>(map + layout::MAP_OFF_INVMATD + 8 * i);
+    }
+    for (int i = 0; i < 3; ++i) {
+        s.map_vec[i]    = load<double>(map + layout::MAP_OFF_VECD + 8 * i);
+        s.voxel_size[i] = load<double>(buf + layout::GRID_OFF_VOXEL_SIZE + 8 * i);
+    }
+    const NodeArray *arrays[3] = { &g.leaf, &g.lower, &g.upper };
+    for (int l = 0; l < 3; ++l) {
+        s.node_count[l] = uint32_t(arrays[l]->count);
+        s.node_begin[l] = arrays[l]->begin;
+    }
+    s.active_voxel_count = load<uint64_t>(t + layout::TREE_OFF_VOXEL_COUNT);
+    return s;
+}
+
+} // namespace
+
+ValidatedGrid validate_float_grid(const std::string &path, const void *data, uint64_t bytes) {
+    // Read only here; the const_cast is undone by m_writable = false
+    uint8_t *buf = const_cast<uint8_t *>(static_cast<const uint8_t *>(data));
+    std::string name;
+    const uint64_t end = check_header(path, buf, bytes, name);
+    const layout::GridTypeConstants &c =
+        *layout::grid_type_constants(load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE));
+    const TreeRegions regions = check_regions(path, buf, end, c);
+
+    ValidatedGrid grid;
+    grid.m_values = TreeWalk(path, buf, regions, c).run();
+    grid.m_summary = summarize(buf, regions, name, c);
+    grid.m_path = path;
+    grid.m_data = buf;
+    grid.m_bytes = bytes;
+    grid.m_writable = false;
+    return grid;
+}
+
+ValidatedGrid validate_float_grid(const std::string &path, void *data, uint64_t bytes) {
+    ValidatedGrid grid = validate_float_grid(path, static_cast<const void *>(data), bytes);
+    grid.m_writable = true;
+    return grid;
+}
+
+} // namespace nanovdb_loader

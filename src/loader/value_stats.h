@@ -1,0 +1,89 @@
+// src/loader/value_stats.h -- accumulates ValueStats (validation.h) over the
+// values of a grid, visited in buffer order. Internal to the loader:
+// validation.cpp fills it while it validates, values.cpp again while
+// sanitize_values() rewrites values.
+#pragma once
+
+#include <nanovdb_loader/validation.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+
+namespace nanovdb_loader::detail {
+
+class ValueAccumulator {
+public:
+    /// One value, stored at byte offset `byte` of the buffer
+    void add(float v, uint64_t byte) {
+        ++m.value_count;
+        if (std::isnan(v)) {
+            if (m.first_nan == ValueStats::NONE) m.first_nan = byte;
+            ++m.nan_count;
+            return;
+        }
+        m_any_non_nan = true;
+        m.min = std::min(m.min, v);
+        m.max = std::max(m.max, v);
+        if (std::isinf(v)) {
+            if (m.first_inf == ValueStats::NONE) m.first_inf = byte;
+            ++(v > 0.f ? m.posinf_count : m.neginf_count);
+            return;
+        }
+        m.finite_min = std::min(m.finite_min, v);
+        m.finite_max = std::max(m.finite_max, v);
+        if (v < 0.f) {
+            if (m.first_negative == ValueStats::NONE) m.first_negative = byte;
+            ++m.negative_count;
+        }
+    }
+
+    /// `count` consecutive float values at `p` (byte offset `byte`): a
+    /// branch-free pass (min/max and a count of NaN/Inf bit patterns, which
+    /// the compiler vectorizes), and the per-value path only for a run that
+    /// holds NaN, Inf or a negative value. (4.6 GiB grid: ~12 s -> ~1 s.)
+    template <uint32_t Count> void add_run(const uint8_t *p, uint64_t byte) {
+        float values[Count];
+        std::memcpy(values, p, sizeof(values));
+        float lmin = std::numeric_limits<float>::infinity(), lmax = -lmin;
+        uint32_t special = 0;
+        for (uint32_t k = 0; k < Count; ++k) {
+            uint32_t bits;
+            std::memcpy(&bits, &values[k], 4);
+            special += (bits & 0x7f800000u) == 0x7f800000u ? 1u : 0u;
+            lmin = values[k] < lmin ? values[k] : lmin;
+            lmax = values[k] > lmax ? values[k] : lmax;
+        }
+        if (special == 0 && !(lmin < 0.f)) {
+            m.value_count += Count;
+            m_any_non_nan = true;
+            m.min = std::min(m.min, lmin);
+            m.max = std::max(m.max, lmax);
+            m.finite_min = std::min(m.finite_min, lmin);
+            m.finite_max = std::max(m.finite_max, lmax);
+            return;
+        }
+        for (uint32_t k = 0; k < Count; ++k)
+            add(values[k], byte + 4 * k);
+    }
+
+    ValueStats finish() const {
+        ValueStats s = m;
+        if (!m_any_non_nan)
+            s.min = s.max = std::numeric_limits<float>::quiet_NaN();
+        return s;
+    }
+
+private:
+    ValueStats m = [] {
+        ValueStats s;
+        s.min = std::numeric_limits<float>::infinity();
+        s.max = -std::numeric_limits<float>::infinity();
+        return s;
+    }();
+    bool m_any_non_nan = false;
+};
+
+} // namespace nanovdb_loader::detail

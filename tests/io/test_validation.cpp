@@ -1,0 +1,314 @@
+// Validation (src/loader/validation.cpp): validate_float_grid's summary and
+// value statistics against NanoVDB's C++ API, and its refusals of hostile
+// buffers.
+
+#include <doctest/doctest.h>
+
+#include "fixtures.h"
+
+TEST_CASE("validate_float_grid on NanoVDB-made float grids") {
+    const Handle sphere = fog_sphere(), torus = ls_torus(), tiles = tile_grid(),
+                 nans = nan_inf_grid(), empty = empty_grid();
+
+    SUBCASE("fog sphere") {
+        const auto *grid = sphere.grid<float>();
+        REQUIRE(grid);
+        const auto info = validate_handle(sphere, "sphere");
+        check_info_against_nanovdb(info, *grid);
+        CHECK(info.summary().name == "density");
+        CHECK(info.summary().grid_class == uint32_t(nanovdb::GridClass::FogVolume));
+        CHECK(!info.summary().empty);
+        // NanoVDB 32.4's createFogVolumeSphere keeps the level set's
+        // background (half width 3 x voxel size 0.5) in the root: a lookup
+        // far outside returns 1.5, above every voxel value (0..1). This is
+        // why value_max must include the background.
+        CHECK(info.summary().background == 1.5f);
+        CHECK(info.values().min == 0.0f);
+        CHECK(info.values().max == 1.5f);
+        CHECK(info.summary().voxel_size[0] == 0.5);
+        CHECK(info.summary().map_vec[0] == 0.25);
+    }
+    SUBCASE("level-set torus") {
+        const auto info = validate_handle(torus, "torus");
+        check_info_against_nanovdb(info, *torus.grid<float>());
+        CHECK(info.summary().background == 3.0f); // half width 3 x voxel size 1
+        CHECK(info.values().max == 3.0f);
+        CHECK(info.values().min == -3.0f);
+    }
+    SUBCASE("tiles at every level (OpenVDB)") {
+        const auto *grid = tiles.grid<float>();
+        REQUIRE(grid);
+        const auto info = validate_handle(tiles, "tiles");
+        check_info_against_nanovdb(info, *grid);
+        CHECK(info.values().max == 100.0f); // the root tile
+        CHECK(info.values().min == -50.0f); // the inactive upper tile
+        CHECK(info.summary().background == 0.5f);
+        CHECK(info.summary().bbox_min[0] == -4096);
+        CHECK(info.summary().voxel_size[1] == 0.25);
+        // The grid really has a tile at each level.
+        const auto &root = grid->tree().root();
+        bool root_tile = false;
+        for (uint32_t i = 0; i < root.tileCount(); ++i)
+            root_tile |= !root.data()->tile(i)->isChild();
+        CHECK(root_tile);
+    }
+    SUBCASE("NaN and Inf values, no statistics") {
+        const auto info = validate_handle(nans, "nans");
+        check_info_against_nanovdb(info, *nans.grid<float>());
+        CHECK(info.values().nan_count == 2);
+        CHECK(info.values().inf_count() == 2);
+        CHECK(info.values().min == -std::numeric_limits<float>::infinity());
+        CHECK(info.values().max == std::numeric_limits<float>::infinity());
+    }
+    SUBCASE("empty grid") {
+        const auto info = validate_handle(empty, "empty");
+        check_info_against_nanovdb(info, *empty.grid<float>());
+        CHECK(info.summary().empty);
+        CHECK(info.summary().node_count[0] == 0);
+        CHECK(info.summary().node_count[2] == 0);
+        CHECK(info.values().min == 1.5f);
+        CHECK(info.values().max == 1.5f);
+    }
+    SUBCASE("buffer larger than the grid: only the first grid is used") {
+        Bytes b = handle_bytes(sphere);
+        const Bytes t = handle_bytes(torus);
+        b.insert(b.end(), t.begin(), t.end());
+        const auto info = nio::validate_float_grid("two", b.data(), b.size());
+        check_info_against_nanovdb(info, *sphere.grid<float>());
+    }
+}
+
+// =====================================================================================
+TEST_CASE("validate_float_grid rejects hostile buffers") {
+    const Handle sphere = fog_sphere();
+    const Handle tiles = tile_grid();
+    const auto &grid = *sphere.grid<float>();
+    const auto &tree = grid.tree();
+    const auto &root = tree.root();
+    const Bytes good = handle_bytes(sphere);
+    const std::string p = "hostile.nvdb";
+    REQUIRE(tree.nodeCount(0) > 0);
+    REQUIRE(tree.nodeCount(1) > 0);
+    REQUIRE(tree.nodeCount(2) > 0);
+    const uint64_t tree_off = offset_in(grid, &tree);
+    const uint64_t root_off = offset_in(grid, &root);
+    const uint64_t upper0 = offset_in(grid, tree.getFirstNode<2>());
+    const uint64_t lower0 = offset_in(grid, tree.getFirstNode<1>());
+    const uint64_t leaf0 = offset_in(grid, tree.getFirstNode<0>());
+    CHECK(tree_off == 672);
+
+    auto validate = [&](const Bytes &b) { return nio::validate_float_grid(p, b.data(), b.size()); };
+    CHECK_NOTHROW(validate(good));
+
+    SUBCASE("too small") {
+        Bytes b(good.begin(), good.begin() + 700);
+        CHECK_IO_ERROR(validate(b), p, "700 bytes", "too small");
+        CHECK_IO_ERROR(nio::validate_float_grid(p, static_cast<const void *>(nullptr), 0), p, "too small");
+    }
+    SUBCASE("16 GiB or more") {
+        // Rejected from the size alone, before any byte is read.
+        CHECK_IO_ERROR(nio::validate_float_grid(p, good.data(), uint64_t(1) << 34), p, "16 GiB");
+    }
+    SUBCASE("wrong magic") {
+        Bytes b = good;
+        std::memcpy(b.data(), "NotAGrid", 8);
+        CHECK_IO_ERROR(validate(b), p, "not a NanoVDB grid", "NotAGrid");
+        std::memcpy(b.data(), "NanoVDB2", 8); // a file magic, not a grid magic
+        CHECK_IO_ERROR(validate(b), p, "NanoVDB2");
+    }
+    SUBCASE("byte-swapped magic") {
+        Bytes b = good;
+        std::reverse(b.begin(), b.begin() + 8);
+        CHECK_IO_ERROR(validate(b), p, "byte-swapped");
+    }
+    SUBCASE("version 31 and 33") {
+        Bytes b = good;
+        poke<uint32_t>(b, 16, packed_version(31, 0, 0));
+        CHECK_IO_ERROR(validate(b), p, "31.0.0", "major version 32");
+        poke<uint32_t>(b, 16, packed_version(33, 1, 2));
+        CHECK_IO_ERROR(validate(b), p, "33.1.2");
+    }
+    SUBCASE("not a float grid") {
+        Bytes b = good;
+        poke<uint32_t>(b, 636, 2);
+        CHECK_IO_ERROR(validate(b), p, "double", "only float grids");
+        poke<uint32_t>(b, 636, 20);
+        CHECK_IO_ERROR(validate(b), p, "OnIndex", "only float grids");
+    }
+    SUBCASE("mGridSize larger than the buffer") {
+        Bytes b = good;
+        poke<uint64_t>(b, 32, good.size() + 32);
+        CHECK_IO_ERROR(validate(b), p, "mGridSize", std::to_string(good.size() + 32));
+        poke<uint64_t>(b, 32, 100);
+        CHECK_IO_ERROR(validate(b), p, "mGridSize", "smaller");
+    }
+    SUBCASE("root offset outside the buffer") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 24, good.size());
+        CHECK_IO_ERROR(validate(b), p, "root node offset", "outside");
+        poke<uint64_t>(b, tree_off + 24, ~uint64_t(0));
+        CHECK_IO_ERROR(validate(b), p, "root node offset", "outside");
+    }
+    SUBCASE("misaligned root and node arrays") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 24, root_off - tree_off + 8);
+        CHECK_IO_ERROR(validate(b), p, "root node", "not 32-byte aligned");
+        b = good;
+        poke<uint64_t>(b, tree_off + 8, lower0 - tree_off + 4);
+        CHECK_IO_ERROR(validate(b), p, "lower node array", "not 32-byte aligned");
+    }
+    SUBCASE("root table_size absurd") {
+        Bytes b = good;
+        poke<uint32_t>(b, root_off + 24, 0xffffffffu);
+        CHECK_IO_ERROR(validate(b), p, "root tile table", "4294967295");
+    }
+    SUBCASE("node arrays that do not fit") {
+        Bytes b = good;
+        poke<uint32_t>(b, tree_off + 32, 0x7fffffffu); // leaf count
+        CHECK_IO_ERROR(validate(b), p, "leaf node array", "does not fit");
+        b = good;
+        poke<uint64_t>(b, tree_off + 16, ~uint64_t(0) - 5); // upper offset
+        CHECK_IO_ERROR(validate(b), p, "upper node array", "does not fit");
+    }
+    // A root tile with a child.
+    uint32_t child_tile = 0;
+    while (child_tile < root.tileCount() && !root.data()->tile(child_tile)->isChild()) ++child_tile;
+    REQUIRE(child_tile < root.tileCount());
+    const uint64_t tile_child = offset_in(grid, root.data()->tile(child_tile)) + 8;
+    CHECK(tile_child == root_off + 64 + 32 * child_tile + 8);
+
+    SUBCASE("root tile child outside the buffer") {
+        Bytes b = good;
+        poke<int64_t>(b, tile_child, int64_t(1) << 40);
+        CHECK_IO_ERROR(validate(b), p, "root tile", "outside");
+        poke<int64_t>(b, tile_child, std::numeric_limits<int64_t>::min());
+        CHECK_IO_ERROR(validate(b), p, "root tile", "outside");
+        poke<int64_t>(b, tile_child, -int64_t(root_off) - 8);
+        CHECK_IO_ERROR(validate(b), p, "root tile", "outside");
+    }
+    SUBCASE("root tile child misaligned or outside the upper array") {
+        Bytes b = good;
+        poke<int64_t>(b, tile_child, peek<int64_t>(good, tile_child) + 32);
+        CHECK_IO_ERROR(validate(b), p, "root tile", "misaligned", "upper");
+        poke<int64_t>(b, tile_child, int64_t(leaf0) - int64_t(root_off));
+        CHECK_IO_ERROR(validate(b), p, "root tile", "outside the upper node array");
+    }
+    SUBCASE("upper child pointing outside the lower array") {
+        const auto *upper = tree.getFirstNode<2>();
+        uint32_t n = 0;
+        while (n < 32768 && !upper->childMask().isOn(n)) ++n;
+        REQUIRE(n < 32768);
+        const uint64_t entry = offset_in(grid, &upper->data()->mTable[n]);
+        CHECK(entry == upper0 + 8256 + 8 * n);
+        Bytes b = good;
+        poke<int64_t>(b, entry, int64_t(leaf0) - int64_t(upper0)); // at the leaf array
+        CHECK_IO_ERROR(validate(b), p, "upper node 0", "table entry " + std::to_string(n),
+                       "outside the lower node array");
+        poke<int64_t>(b, entry, int64_t(good.size()));
+        CHECK_IO_ERROR(validate(b), p, "upper node 0", "outside");
+        poke<int64_t>(b, entry, peek<int64_t>(good, entry) + 4);
+        CHECK_IO_ERROR(validate(b), p, "upper node 0", "misaligned");
+    }
+    SUBCASE("lower child pointing outside the leaf array") {
+        const auto *lower = tree.getFirstNode<1>();
+        uint32_t n = 0;
+        while (n < 4096 && !lower->childMask().isOn(n)) ++n;
+        REQUIRE(n < 4096);
+        const uint64_t entry = offset_in(grid, &lower->data()->mTable[n]);
+        CHECK(entry == lower0 + 1088 + 8 * n);
+        Bytes b = good;
+        poke<int64_t>(b, entry, 0); // the lower node itself
+        CHECK_IO_ERROR(validate(b), p, "lower node 0", "outside the leaf node array");
+        poke<int64_t>(b, entry, -int64_t(lower0) - 1);
+        CHECK_IO_ERROR(validate(b), p, "lower node 0", "outside");
+    }
+    SUBCASE("a child bit set in a grid with no nodes below") {
+        Bytes b = good;
+        poke<uint32_t>(b, tree_off + 32, 0); // pretend there are no leaves
+        CHECK_IO_ERROR(validate(b), p, "lower node", "no leaf nodes");
+    }
+    SUBCASE("tile grid: a root tile value made a child") {
+        const auto &tg = *tiles.grid<float>();
+        const auto &troot = tg.tree().root();
+        uint32_t value_tile = 0;
+        while (value_tile < troot.tileCount() && troot.data()->tile(value_tile)->isChild())
+            ++value_tile;
+        REQUIRE(value_tile < troot.tileCount());
+        Bytes b = handle_bytes(tiles);
+        poke<int64_t>(b, offset_in(tg, troot.data()->tile(value_tile)) + 8, 64);
+        CHECK_IO_ERROR(nio::validate_float_grid(p, b.data(), b.size()), p,
+                       ("root tile " + std::to_string(value_tile)), "upper");
+    }
+}
+
+// =====================================================================================
+
+TEST_CASE("validate_float_grid: node arrays must not overlap; children at the right level") {
+    const Handle sphere = fog_sphere();
+    const auto &grid = *sphere.grid<float>();
+    const auto &tree = grid.tree();
+    const Bytes good = handle_bytes(sphere);
+    const std::string p = "overlap.nvdb";
+    const uint64_t tree_off = 672;
+    const uint64_t root_off = offset_in(grid, &tree.root());
+    const uint64_t upper0 = offset_in(grid, tree.getFirstNode<2>());
+    const uint64_t lower0 = offset_in(grid, tree.getFirstNode<1>());
+    auto validate = [&](const Bytes &b) { return nio::validate_float_grid(p, b.data(), b.size()); };
+
+    SUBCASE("the leaf array overlapping the root") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 0, root_off - tree_off);
+        CHECK_IO_ERROR(validate(b), p, "leaf node array", "overlaps the root node");
+    }
+    SUBCASE("the lower array overlapping the upper array") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 8, upper0 - tree_off + 32);
+        CHECK_IO_ERROR(validate(b), p, "lower node array", "overlaps the upper node array");
+    }
+    SUBCASE("a node array inside the grid header") {
+        Bytes b = good;
+        poke<uint64_t>(b, tree_off + 16, 0); // upper array at the tree itself
+        CHECK_IO_ERROR(validate(b), p, "upper node array", "overlaps the grid and tree header");
+    }
+    SUBCASE("a root table long enough to run into the upper array") {
+        Bytes b = good;
+        const uint32_t tiles = uint32_t((upper0 - root_off - 64) / 32) + 1;
+        poke<uint32_t>(b, root_off + 24, tiles);
+        CHECK_IO_ERROR(validate(b), p, "upper node array", "overlaps the root node and its tile table");
+    }
+    SUBCASE("child offsets at the parent itself, backwards, or at the wrong level") {
+        const auto *upper = tree.getFirstNode<2>();
+        uint32_t n = 0;
+        while (n < 32768 && !upper->childMask().isOn(n)) ++n;
+        REQUIRE(n < 32768);
+        const uint64_t entry = upper0 + 8256 + 8 * n;
+        Bytes b = good;
+        poke<int64_t>(b, entry, 0); // the upper node itself
+        CHECK_IO_ERROR(validate(b), p, "upper node 0", "outside the lower node array");
+        poke<int64_t>(b, entry, int64_t(root_off) - int64_t(upper0)); // backwards, at the root
+        CHECK_IO_ERROR(validate(b), p, "upper node 0", "outside the lower node array");
+        // A root tile pointing at a lower node (one level too deep)
+        uint32_t t = 0;
+        const auto &root = tree.root();
+        while (!root.data()->tile(t)->isChild()) ++t;
+        Bytes c = good;
+        poke<int64_t>(c, offset_in(grid, root.data()->tile(t)) + 8, int64_t(lower0) - int64_t(root_off));
+        CHECK_IO_ERROR(validate(c), p, "root tile", "outside the upper node array");
+    }
+    SUBCASE("every file of shared/data and every NanoVDB-made grid still validates") {
+        for (const Handle *h : { &sphere }) CHECK_NOTHROW(validate_handle(*h, "ok"));
+        const Handle t = tile_grid(), e = empty_grid(), l = ls_torus();
+        CHECK_NOTHROW(validate_handle(t, "t"));
+        CHECK_NOTHROW(validate_handle(e, "e"));
+        CHECK_NOTHROW(validate_handle(l, "l"));
+    }
+}
+
+// =====================================================================================
+// A buffer that passed validation but holds garbage (mutated tile keys, masks,
+// table values, counts...) never makes a lookup leave it. The grid sits at the
+// end of a mapping followed by 16 GiB + a page of PROT_NONE address space, all
+// that a 32-bit word address can reach: any read past the end faults. Each
+// returned address is also checked against the buffer size.
+// =====================================================================================
+
