@@ -113,7 +113,7 @@ def machine_info():
                                 text=True).stdout.strip()
         dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--untracked-files=no"],
                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                               text=True).stdout.strip()
+                               text=True).stdout.rstrip()
         if dirty:
             commit += " (+ uncommitted changes: " + ", ".join(
                 line[3:] for line in dirty.splitlines()) + ")"
@@ -451,6 +451,8 @@ def write_all(run):
 def clear_outputs(out):
     os.makedirs(out, exist_ok=True)
     for f in os.listdir(out):  # a run replaces the previous one's files
+        if f.startswith("huge_sparse."):
+            continue  # bench/huge_sparse.py's, not the report's
         if f.endswith((".png", ".csv")) or f == "REPORT.md":
             os.remove(os.path.join(out, f))
 

@@ -24,8 +24,9 @@ done
   build/bin/nvdb_make_test_grid lower_tiles build-fuzz/seeds/lower_tiles_blosc.nvdb --codec blosc >/dev/null
 [ -f build-fuzz/seeds/single_voxel_none.nvdb ] ||
   build/bin/nvdb_make_test_grid single_voxel build-fuzz/seeds/single_voxel_none.nvdb >/dev/null
+shared="${NVDB_SHARED_DATA:-../shared/data}"
 build-fuzz/bin/fuzz_nvdb -max_total_time="${NVDB_FUZZ_SECONDS:-20}" -print_final_stats=1 \
-  build-fuzz/corpus build-fuzz/seeds $( [ -d ../shared/data ] && echo ../shared/data ) 2>&1 | tail -n 8
+  build-fuzz/corpus build-fuzz/seeds $( [ -d "$shared" ] && echo "$shared" ) 2>&1 | tail -n 8
 echo "== bench (fast mode: the harness runs end to end; timings are not asserted)"
 "${PYTHON:-python3}" bench/run.py --fast
 # pytest last: its summary line closes the run

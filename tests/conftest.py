@@ -169,12 +169,23 @@ def make_stability_grid(directory, name, *args, dense=True):
     return str(nvdb), (str(vol) if dense else None), summary
 
 
+def _bench_module(name):
+    """A module of bench/ (the measurement helpers the tests share with it)."""
+    import importlib
+    import sys
+    if str(ROOT / "bench") not in sys.path:
+        sys.path.insert(0, str(ROOT / "bench"))
+    return importlib.import_module(name)
+
+
 def gpu_used_bytes():
     """Device memory in use on GPU 0 (bench/gpu.py: NVML or nvidia-smi)."""
-    import sys
-    sys.path.insert(0, str(ROOT / "bench"))
-    import gpu
-    return gpu.used_bytes()
+    return _bench_module("gpu").used_bytes()
+
+
+def rss_bytes():
+    """This process's resident memory (bench/worker.py)."""
+    return _bench_module("worker").rss_bytes()
 
 
 def settle_gpu():

@@ -40,7 +40,7 @@ import drjit as dr
 import mitsuba as mi
 
 from conftest import (BUILD, eval_points, gpu_used_bytes, load_dense, load_nvdb, read_vol,
-                      settle_gpu)
+                      rss_bytes, settle_gpu)
 from conftest import make_stability_grid as make
 
 BIG = BUILD / "bin" / "nvdb_big_grid"
@@ -480,14 +480,6 @@ def big_grid(tmp_path_factory):
     assert size == path.stat().st_size and size > 4.5 * 2**30
     yield str(path), size, first_past
     path.unlink()
-
-
-def rss_bytes():
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) * 1024
-    return 0
 
 
 @pytest.mark.slow

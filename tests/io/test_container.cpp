@@ -43,8 +43,9 @@ TEST_CASE("grid_type_name and describe_grids") {
 // =====================================================================================
 
 TEST_CASE("files written by NanoVDB 32.4: list_grids, select_grid, read_grid") {
-    const Handle sphere = fog_sphere("density"), torus = ls_torus("surface"),
-                 nans = nan_inf_grid();
+    // Built once for all subcases (doctest re-runs this body for each)
+    static const Handle sphere = fog_sphere("density"), torus = ls_torus("surface"),
+                        nans = nan_inf_grid();
     const uint32_t version32_4 = nanovdb::Version().id();
 
     for (const auto codec : { nanovdb::io::Codec::NONE, nanovdb::io::Codec::ZIP,
@@ -194,8 +195,8 @@ TEST_CASE("files written by NanoVDB 32.4: list_grids, select_grid, read_grid") {
 
 // =====================================================================================
 TEST_CASE("newer file forms: NanoVDB2 header, NanoVDB1 grids, raw grid buffers") {
-    const Handle sphere = fog_sphere("density"), torus = ls_torus("surface");
-    const Bytes sphere_bytes = handle_bytes(sphere), torus_bytes = handle_bytes(torus);
+    static const Handle sphere = fog_sphere("density"), torus = ls_torus("surface");
+    static const Bytes sphere_bytes = handle_bytes(sphere), torus_bytes = handle_bytes(torus);
     const auto ref_info = validate_handle(sphere, "ref");
 
     SUBCASE("32.8+: NanoVDB2 file header, NanoVDB1 grid magic, version 32.8.0") {
@@ -289,10 +290,13 @@ TEST_CASE("newer file forms: NanoVDB2 header, NanoVDB1 grids, raw grid buffers")
 
 // =====================================================================================
 TEST_CASE("list_grids and read_grid reject hostile files") {
-    const Handle sphere = fog_sphere("density"), torus = ls_torus("surface");
-    std::vector<Handle> two;
-    two.push_back(fog_sphere("density"));
-    two.push_back(ls_torus("surface"));
+    static const Handle sphere = fog_sphere("density"), torus = ls_torus("surface");
+    static const std::vector<Handle> two = [] {
+        std::vector<Handle> v;
+        v.push_back(fog_sphere("density"));
+        v.push_back(ls_torus("surface"));
+        return v;
+    }();
     const std::string none_path = tmp_path("h_none.nvdb"), zip_path = tmp_path("h_zip.nvdb"),
                       blosc_path = tmp_path("h_blosc.nvdb"), two_path = tmp_path("h_two.nvdb");
     nanovdb::io::writeGrid(none_path, sphere, nanovdb::io::Codec::NONE);

@@ -7,8 +7,9 @@
 #include "fixtures.h"
 
 TEST_CASE("validate_float_grid on NanoVDB-made float grids") {
-    const Handle sphere = fog_sphere(), torus = ls_torus(), tiles = tile_grid(),
-                 nans = nan_inf_grid(), empty = empty_grid();
+    // Built once for all subcases (doctest re-runs this body for each)
+    static const Handle sphere = fog_sphere(), torus = ls_torus(), tiles = tile_grid(),
+                        nans = nan_inf_grid(), empty = empty_grid();
 
     SUBCASE("fog sphere") {
         const auto *grid = sphere.grid<float>();
@@ -80,12 +81,12 @@ TEST_CASE("validate_float_grid on NanoVDB-made float grids") {
 
 // =====================================================================================
 TEST_CASE("validate_float_grid rejects hostile buffers") {
-    const Handle sphere = fog_sphere();
-    const Handle tiles = tile_grid();
+    static const Handle sphere = fog_sphere();
+    static const Handle tiles = tile_grid();
     const auto &grid = *sphere.grid<float>();
     const auto &tree = grid.tree();
     const auto &root = tree.root();
-    const Bytes good = handle_bytes(sphere);
+    static const Bytes good = handle_bytes(sphere);
     const std::string p = "hostile.nvdb";
     REQUIRE(tree.nodeCount(0) > 0);
     REQUIRE(tree.nodeCount(1) > 0);
@@ -244,10 +245,10 @@ TEST_CASE("validate_float_grid rejects hostile buffers") {
 // =====================================================================================
 
 TEST_CASE("validate_float_grid: node arrays must not overlap; children at the right level") {
-    const Handle sphere = fog_sphere();
+    static const Handle sphere = fog_sphere();
     const auto &grid = *sphere.grid<float>();
     const auto &tree = grid.tree();
-    const Bytes good = handle_bytes(sphere);
+    static const Bytes good = handle_bytes(sphere);
     const std::string p = "overlap.nvdb";
     const uint64_t tree_off = 672;
     const uint64_t root_off = offset_in(grid, &tree.root());

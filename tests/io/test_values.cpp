@@ -279,3 +279,63 @@ TEST_CASE("sanitize_values replaces NaN, Inf and negatives in place") {
 }
 
 // =====================================================================================
+
+TEST_CASE("sanitize_values keeps the grid's statistics true; apply_value_policy") {
+    SUBCASE("after sanitizing, the statistics equal a fresh validation's") {
+        const Handle h = tile_grid(); // negatives: -50 (upper tile), -2 (voxel)
+        Aligned a(h.size());
+        std::memcpy(a.data(), h.data(), h.size());
+        nio::ValidatedGrid grid = nio::validate_float_grid("tiles", a.data(), a.size);
+        CHECK(grid.values().negative_count == 2);
+        nio::sanitize_values(grid);
+        const nio::ValidatedGrid fresh = nio::validate_float_grid("tiles", a.data(), a.size);
+        const nio::ValueStats &x = grid.values(), &y = fresh.values();
+        CHECK(x.min == y.min);
+        CHECK(x.max == y.max);
+        CHECK(x.finite_min == y.finite_min);
+        CHECK(x.finite_max == y.finite_max);
+        CHECK(x.value_count == y.value_count);
+        CHECK(x.negative_count == 0);
+        CHECK(y.negative_count == 0);
+        CHECK(x.first_negative == nio::ValueStats::NONE);
+    }
+    SUBCASE("a read-only grid cannot be sanitized") {
+        const Handle h = nan_inf_grid();
+        nio::ValidatedGrid grid = nio::validate_float_grid("ro", static_cast<const void *>(h.data()),
+                                                           h.size());
+        CHECK_IO_ERROR(nio::sanitize_values(grid), "ro", "read-only");
+    }
+    SUBCASE("error: NaN/Inf refused, naming file, grid and the first voxel") {
+        const Handle h = nan_inf_grid();
+        Aligned a(h.size());
+        std::memcpy(a.data(), h.data(), h.size());
+        nio::ValidatedGrid grid = nio::validate_float_grid("f.nvdb", a.data(), a.size);
+        CHECK_IO_ERROR(nio::apply_value_policy(grid, "nan_inf", nio::InvalidValues::Error),
+                       "f.nvdb", "grid \"nan_inf\"", "2 NaN (first: voxel (0, 0, 0))",
+                       "1 +Inf and 1 -Inf", "invalid_values=\"clamp\"");
+        CHECK(a.bytes() == handle_bytes(h)); // nothing written
+    }
+    SUBCASE("error: negatives load with a warning that locates the first") {
+        const Handle h = tile_grid();
+        Aligned a(h.size());
+        std::memcpy(a.data(), h.data(), h.size());
+        nio::ValidatedGrid grid = nio::validate_float_grid("t.nvdb", a.data(), a.size);
+        const auto warnings = nio::apply_value_policy(grid, "tiles", nio::InvalidValues::Error);
+        REQUIRE(warnings.size() == 1);
+        check_message(warnings[0], "t.nvdb",
+                      { "grid \"tiles\"", "2 negative values", "upper-node tile (128^3 voxels) at (0, 0, 128)" });
+        CHECK(a.bytes() == handle_bytes(h));
+    }
+    SUBCASE("clamp: replaced and counted; a clean grid costs nothing") {
+        const Handle h = nan_inf_grid();
+        Aligned a(h.size());
+        std::memcpy(a.data(), h.data(), h.size());
+        nio::ValidatedGrid grid = nio::validate_float_grid("c.nvdb", a.data(), a.size);
+        const auto warnings = nio::apply_value_policy(grid, "nan_inf", nio::InvalidValues::Clamp);
+        REQUIRE(warnings.size() == 1);
+        check_message(warnings[0], "c.nvdb", { "replaced 2 NaN by 0", "1 +Inf", "1 -Inf and 0 negative" });
+        CHECK(grid.values().all_finite());
+        CHECK(grid.values().max == 4.0f);
+        CHECK(nio::apply_value_policy(grid, "nan_inf", nio::InvalidValues::Error).empty());
+    }
+}
