@@ -4,6 +4,7 @@ variant), interleaved (A B A B ...), so that both builds see the same machine.
 
     python3 bench/ab.py --builds OLD_BUILD NEW_BUILD --grids a.nvdb b.nvdb \
         [--variants llvm_ad_rgb scalar_rgb] [--rounds 3] [--out table.md]
+        [--load-only] [--volume-args '{"invalid_values": "clamp"}']
 
 A build is a directory holding plugins/nanovdbvolume.so. Per process and
 filter (nearest, trilinear): the load time (mi.load_dict of the volume: read,
@@ -12,6 +13,8 @@ validate, upload), the lookup throughput (llvm: one vectorized eval_1 over
 no vectorized lookup, so none), and the render time of the benchmark scene's
 first sensor (llvm: 128^2, 16 spp; scalar: 64^2, 16 spp; warm median of 3).
 The table gives the median over the rounds of each build and new/old.
+--load-only measures the load time alone (median of 7 loads per process);
+--volume-args adds plugin parameters (JSON) to every volume.
 A measurement, not a test.
 """
 import argparse
@@ -38,12 +41,16 @@ def sync():
 out = {{}}
 for filt in ("nearest", "trilinear"):
     loads = []
-    for k in range(3):
+    desc = dict(volume_dict("nanovdbvolume", {grid!r}, filt), **{extra!r})
+    for k in range(7 if {load_only!r} else 3):
         t0 = time.perf_counter()
-        vol = mi.load_dict(volume_dict("nanovdbvolume", {grid!r}, filt))
+        vol = mi.load_dict(desc)
         sync()
         loads.append(time.perf_counter() - t0)
     r = {{"load_s": statistics.median(loads)}}
+    if {load_only!r}:
+        out[filt] = r
+        continue
     if jit:
         n = 1 << 20
         pts = np.random.default_rng(1).random((3, n), dtype=np.float32)
@@ -79,7 +86,10 @@ def main():
     ap.add_argument("--variants", nargs="+", default=["llvm_ad_rgb", "scalar_rgb"])
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--out")
+    ap.add_argument("--load-only", action="store_true")
+    ap.add_argument("--volume-args", default="{}", help="JSON: extra plugin parameters")
     a = ap.parse_args()
+    extra = json.loads(a.volume_args)
     for b in a.builds:
         if not os.path.isfile(os.path.join(b, "plugins", "nanovdbvolume.so")):
             sys.exit(f"{b}: no plugins/nanovdbvolume.so")
@@ -91,12 +101,16 @@ def main():
             for g in a.grids:
                 for tag, build in zip(("old", "new"), a.builds):
                     code = CHILD.format(here=HERE, variant=variant, build=os.path.abspath(build),
-                                        grid=os.path.abspath(g))
+                                        grid=os.path.abspath(g), extra=extra,
+                                        load_only=a.load_only)
                     p = subprocess.run([sys.executable, "-c", code], capture_output=True,
                                        text=True)
                     if p.returncode != 0:
                         sys.exit(f"{tag} {variant} {g} failed:\n{p.stdout}\n{p.stderr}")
-                    d = json.loads(p.stdout.strip().splitlines()[-1])
+                    # the last JSON line (Mitsuba's log, e.g. warnings, goes to stdout too)
+                    # (after any terminal colour codes of the log)
+                    d = json.loads([x[x.index('{"'):] for x in p.stdout.splitlines()
+                                    if '{"' in x][-1])
                     results.setdefault((variant, g), {}).setdefault(tag, []).append(d)
                     print(f"round {r} {variant} {os.path.basename(g)} {tag}: {d}",
                           file=sys.stderr, flush=True)
@@ -106,6 +120,7 @@ def main():
         return statistics.median(vals) if vals else None
 
     L = [f"old = `{a.builds[0]}`, new = `{a.builds[1]}`; {a.rounds} rounds, interleaved; "
+         f"volume parameters {extra or 'default'}{'; load only' if a.load_only else ''}; "
          "medians over the rounds. load: mi.load_dict of the volume; lookups: llvm, one "
          "eval_1 over 2^20 points; render: first sensor of the benchmark scene (llvm 128² "
          "16 spp, scalar 64² 16 spp).\n",
