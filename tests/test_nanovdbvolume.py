@@ -316,7 +316,9 @@ def test15_negative_values_load_by_default(variants_rgb, make_grid, tmp_path):
     path = _single_voxel_with(make_grid, tmp_path, -2.5, "negative.nvdb")
     vol = load_nvdb(path, filter_type="nearest")
     assert np.all(eval_points(vol, [[0.5, 0.5, 0.5]]) == -2.5)
-    assert vol.max() == 0.0   # the background bounds the negative voxel
+    # max() is what lookups inside the volume return: here its one voxel (the
+    # background, 0, lies outside; see test19)
+    assert vol.max() == -2.5
     nvdb, _, _ = make_stability_grid(tmp_path, "negative", "--value", 1.0,
                                      "--set", 2, 2, 2, -0.5, dense=False)
     vol = load_nvdb(nvdb, filter_type="nearest", use_grid_transform=True)
@@ -366,24 +368,44 @@ def test18_trilinear_never_exceeds_max(variants_rgb, make_grid, name):
     assert v.max() == vol.max()   # the plateau reaches it
 
 
+@pytest.mark.parametrize("filter_type", ["nearest", "trilinear"])
+def test19_max_is_what_lookups_in_the_volume_return(variants_rgb, tmp_path, filter_type):
+    # Voxels of 1 in the box [0, 7]^3, background 3 (as a fog volume made
+    # from a level set keeps it): nearest lookups inside the volume read only
+    # the voxels, so max() = 1, not the grid's maximum 3; trilinear stencils
+    # reach the one-voxel ring, which holds the background, so max() = 3.
+    nvdb, _, _ = make_stability_grid(tmp_path, "bg3", "--max", 7, 7, 7, "--value", 1,
+                                     "--background", 3, dense=False)
+    vol = load_nvdb(nvdb, filter_type=filter_type)
+    want = 1.0 if filter_type == "nearest" else 3.0
+    assert vol.max() == want
+    assert "grid_max = 3" in str(vol)
+    v = eval_points(vol, random_points(point_count(), 19, 0, 1))
+    assert v.max() <= want
+    # Outside the volume the tree holds the background, 3: lookups there
+    # are clamped to max(), so that it bounds every lookup
+    outside = eval_points(vol, [[1.5, 0.5, 0.5], [-2.0, 0.5, 0.5], [0.5, 0.5, 9.0]])
+    assert np.all(outside == want)
+
+
 # ---------------------------------------------------------------------------
 #  Bad input: each a clear error naming the file, never a crash
 # ---------------------------------------------------------------------------
 
-def test19_missing_file(variant_scalar_rgb, tmp_path):
+def test20_missing_file(variant_scalar_rgb, tmp_path):
     path = tmp_path / "does_not_exist.nvdb"
     with pytest.raises(RuntimeError, match="does_not_exist.nvdb"):
         load_nvdb(str(path))
 
 
-def test20_not_a_nanovdb_file(variant_scalar_rgb, tmp_path):
+def test21_not_a_nanovdb_file(variant_scalar_rgb, tmp_path):
     path = tmp_path / "text.nvdb"
     path.write_text("this is not a NanoVDB file, just some text\n" * 10)
     with pytest.raises(RuntimeError, match=r"(?s)text\.nvdb.*NanoVDB"):
         load_nvdb(str(path))
 
 
-def test21_truncated_file(variant_scalar_rgb, make_grid, tmp_path):
+def test22_truncated_file(variant_scalar_rgb, make_grid, tmp_path):
     nvdb, _ = make_grid("fog_sphere", dense=False)
     data = Path(nvdb).read_bytes()
     for cut in [10, 100, 300, len(data) // 2, len(data) - 1]:
@@ -402,7 +424,7 @@ def _grid_payload_offset(data):
     return 16 + 176 + name_size
 
 
-def test22_node_offset_outside_buffer(variant_scalar_rgb, make_grid, tmp_path):
+def test23_node_offset_outside_buffer(variant_scalar_rgb, make_grid, tmp_path):
     nvdb, _ = make_grid("fog_sphere", dense=False)
     data = bytearray(Path(nvdb).read_bytes())
     grid = _grid_payload_offset(data)
@@ -424,7 +446,7 @@ def test22_node_offset_outside_buffer(variant_scalar_rgb, make_grid, tmp_path):
         load_nvdb(str(path2))
 
 
-def test23_unsupported_grid_type(variant_scalar_rgb):
+def test24_unsupported_grid_type(variant_scalar_rgb):
     data = need_shared_data("warp_int32_zip_32.3.3.nvdb", "warp_vec3f_zip_32.3.3.nvdb")
     path = data / "warp_int32_zip_32.3.3.nvdb"
     with pytest.raises(RuntimeError, match=r"(?s)warp_int32_zip_32\.3\.3\.nvdb.*int32"):
@@ -434,19 +456,19 @@ def test23_unsupported_grid_type(variant_scalar_rgb):
         load_nvdb(str(path))
 
 
-def test24_grid_not_found_lists_grids(variant_scalar_rgb):
+def test25_grid_not_found_lists_grids(variant_scalar_rgb):
     path = need_shared_data("warp_torus_ls_zip_32.3.3.nvdb") / "warp_torus_ls_zip_32.3.3.nvdb"
     with pytest.raises(RuntimeError, match=r'(?s)warp_torus.*"nope".*surface'):
         load_nvdb(str(path), grid="nope")
 
 
-def test25_invalid_filter_type(variant_scalar_rgb, make_grid):
+def test26_invalid_filter_type(variant_scalar_rgb, make_grid):
     nvdb, _ = make_grid("single_voxel", dense=False)
     with pytest.raises(RuntimeError, match="cubic"):
         load_nvdb(nvdb, filter_type="cubic")
 
 
-def test26_directory_and_empty_file(variant_scalar_rgb, tmp_path):
+def test27_directory_and_empty_file(variant_scalar_rgb, tmp_path):
     empty = tmp_path / "empty.nvdb"
     empty.write_bytes(b"")
     with pytest.raises(RuntimeError, match="empty.nvdb"):
@@ -460,7 +482,7 @@ def test26_directory_and_empty_file(variant_scalar_rgb, tmp_path):
 # ---------------------------------------------------------------------------
 
 @pytest.mark.parametrize("path", shared_data_files("*.nvdb"))
-def test27_shared_data_files(variants_rgb, path):
+def test28_shared_data_files(variants_rgb, path):
     need_shared_data()
     name = path.name
     if name.startswith("warp_torus_ls"):
@@ -491,7 +513,7 @@ def test27_shared_data_files(variants_rgb, path):
 #  Install step
 # ---------------------------------------------------------------------------
 
-def test28_install_puts_plugin_into_mitsubas_plugin_dir(tmp_path):
+def test29_install_puts_plugin_into_mitsubas_plugin_dir(tmp_path):
     # 'cmake --install build' targets the installed Mitsuba's own plugins/
     # directory, where Mitsuba finds it with no path set-up. Staged through
     # DESTDIR so that the test leaves site-packages untouched.

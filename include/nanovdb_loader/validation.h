@@ -36,6 +36,7 @@
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <vector>
 
 namespace nanovdb_loader {
 
@@ -94,6 +95,9 @@ public:
     uint64_t bytes() const { return m_bytes; }
     const GridSummary &summary() const { return m_summary; }
     const ValueStats &values() const { return m_values; }
+    /// The largest value of each leaf (NaN skipped; -Inf if all its values
+    /// are NaN), in leaf array order: what majorants are built from
+    const std::vector<float> &leaf_max() const { return m_leaf_max; }
 
 private:
     friend ValidatedGrid validate_float_grid(const std::string &, void *, uint64_t);
@@ -107,6 +111,7 @@ private:
     uint64_t m_bytes = 0;
     GridSummary m_summary;
     ValueStats m_values;
+    std::vector<float> m_leaf_max;
 };
 
 /// Validates a float grid buffer (its first grid, when it holds several) and

@@ -9,6 +9,7 @@
 #include "value_stats.h"
 
 #include <string>
+#include <vector>
 
 namespace nanovdb_loader {
 
@@ -154,6 +155,9 @@ public:
              const layout::GridTypeConstants &c)
         : m_path(path), m_buf(buf), m_g(g), m_c(c) {}
 
+    /// The largest value of every leaf (NaN skipped), in leaf array order
+    std::vector<float> leaf_max;
+
     ValueStats run() {
         const uint8_t *r = m_buf + m_g.root;
         m_values.add(load<float>(r + m_c.root_off_background), m_g.root + m_c.root_off_background);
@@ -212,9 +216,10 @@ private:
 
     /// Leaves hold almost all values: a vectorizable pass per leaf
     void leaves() {
+        leaf_max.resize(m_g.leaf.count);
         for (uint64_t n = 0; n < m_g.leaf.count; ++n) {
             const uint64_t table = m_g.leaf.begin + n * m_c.leaf_size + m_c.leaf_off_table;
-            m_values.add_run<layout::LEAF_TABLE_COUNT>(m_buf + table, table);
+            leaf_max[n] = m_values.add_run<layout::LEAF_TABLE_COUNT>(m_buf + table, table);
         }
     }
 
@@ -304,7 +309,9 @@ ValidatedGrid validate_float_grid(const std::string &path, const void *data, uin
     const TreeRegions regions = check_regions(path, buf, end, c);
 
     ValidatedGrid grid;
-    grid.m_values = TreeWalk(path, buf, regions, c).run();
+    TreeWalk walk(path, buf, regions, c);
+    grid.m_values = walk.run();
+    grid.m_leaf_max = std::move(walk.leaf_max);
     grid.m_summary = summarize(buf, regions, name, c);
     grid.m_path = path;
     grid.m_data = buf;

@@ -19,8 +19,10 @@ struct ValueRewriter {
                                       "validated from a read-only buffer");
         return grid.m_data;
     }
-    static void set_values(ValidatedGrid &grid, const ValueStats &stats) {
+    static void set_values(ValidatedGrid &grid, const ValueStats &stats,
+                           std::vector<float> leaf_max) {
         grid.m_values = stats;
+        grid.m_leaf_max = std::move(leaf_max);
     }
 };
 
@@ -232,6 +234,11 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
     const float neg_repl = options.clamp_negative || !any_finite ? 0.f : before.finite_min;
     SanitizeResult r;
     ValueAccumulator after;
+    const GridSummary &s = grid.summary();
+    const layout::GridTypeConstants &c = constants(grid);
+    std::vector<float> leaf_max(s.node_count[0], -std::numeric_limits<float>::infinity());
+    // The leaf array's bytes (validated disjoint from every other region)
+    const uint64_t leaves = s.node_begin[0], leaves_end = leaves + uint64_t(s.node_count[0]) * c.leaf_size;
     for_each_value(grid, [&](uint8_t *p, uint64_t byte) {
         const float v = load<float>(p);
         float w = v;
@@ -242,8 +249,12 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
         if (w != v) // NaN != 0 too
             std::memcpy(p, &w, sizeof(float));
         after.add(w, byte);
+        if (byte >= leaves && byte < leaves_end) { // a leaf value
+            float &m = leaf_max[size_t((byte - leaves) / c.leaf_size)];
+            m = std::max(m, w);
+        }
     });
-    ValueRewriter::set_values(grid, after.finish());
+    ValueRewriter::set_values(grid, after.finish(), std::move(leaf_max));
     return r;
 }
 

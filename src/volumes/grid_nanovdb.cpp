@@ -8,6 +8,7 @@
 #include <nanovdb_drjit/fast_readers.h>
 #include <nanovdb_drjit/stencil.h>
 #include <nanovdb_loader/load.h>
+#include <nanovdb_loader/majorants.h>
 
 #include <cstdlib>
 #include <cstring>
@@ -89,11 +90,16 @@ floating point, and the integer :math:`m` is added last, so grids far from
 the origin keep full precision.
 
 The file is validated once when it is loaded (every node offset of the tree
-must point inside it), so lookups can trust it. ``max()`` is the maximum of
-every value that a lookup can return (background, tiles and all leaf values,
-active or not), a true upper bound for the ``heterogeneous`` medium's
-majorant; trilinear results are clamped to it, because rounded interpolation
-weights can overshoot the largest corner value by a few ulps. Grids containing
+must point inside it), so lookups can trust it. ``max()`` is the largest
+value a lookup inside the volume can return: the voxels and tiles of the
+active index box, for ``trilinear`` also the one-voxel ring its stencils
+reach (and the background where they leave the tree). Values the grid
+stores elsewhere do not count: a fog volume made from a level set often
+keeps the level set's background in its root, and a global maximum would
+make the ``heterogeneous`` medium's majorant (``scale * max()``) several
+times too large. Every lookup is clamped to ``max()``, so it is a true upper
+bound even at points outside the box (and for the few ulps by which rounded
+trilinear weights can overshoot the largest corner). Grids containing
 NaN or infinite values are rejected unless ``invalid_values="clamp"``. Only float
 grids are supported; other grid types fail with a message that names them.
 
@@ -213,6 +219,7 @@ public:
             << "  dimensions = " << m_resolution_host << "," << std::endl
             << "  background = " << m_background_host << "," << std::endl
             << "  max = " << m_max_host << "," << std::endl
+            << "  grid_max = " << m_grid_max_host << "," << std::endl
             << "  bytes = " << m_grid_bytes << "," << std::endl
             << "  backend_bytes = " << m_backend_bytes << "," << std::endl
             << "  reader = " << (m_reader.root_indexed ? "root index" : "root search")
@@ -234,7 +241,11 @@ private:
     //  keep full precision.
     // =====================================================================
 
-    /// Value at the local point of `it`: local -> index, then the filter
+    /// Value at the local point of `it`: local -> index, then the filter.
+    /// Inside the volume's box every value is at most max(); points outside
+    /// it (use_grid_transform with a rotation, a shape larger than the
+    /// volume) may reach other values of the tree, which are clamped to
+    /// max(), so that max() bounds every lookup, as a majorant must.
     Float lookup(const Interaction3f &it, Mask active) const {
         MI_MASK_ARGUMENT(active);
         Vector3f rel; // index position relative to m_index_min
@@ -254,13 +265,15 @@ private:
         return trilinear_at(rel, active);
     }
 
-    /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal)
+    /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal),
+    /// clamped to max()
     Float value_at(const Vector3i &ijk, Mask active) const {
         namespace ndr = nanovdb_drjit;
         ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
-        return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+        return dr::minimum(m_max, m_reader.apply(grid_words(), [&](const auto &buf,
+                                                                    const auto &root) {
             return ndr::root_get_value(buf, root, c, active);
-        });
+        }));
     }
 
     /// Trilinear interpolation at index position m_index_min + rel: the 8
@@ -287,7 +300,8 @@ private:
         }
         // The rounded weights can sum to slightly more than 1, so the result
         // could exceed the largest corner by a few ulps (measured: 3 ulps on
-        // a level set whose values sit at its maximum). The heterogeneous
+        // a level set whose values sit at its maximum); and corners outside
+        // the volume's box may hold more than max(). The heterogeneous
         // medium needs max() to be a true bound, so clamp.
         return dr::minimum(result, m_max);
     }
@@ -357,9 +371,13 @@ private:
             for (const std::string &warning : decoded.warnings)
                 Log(Warn, "%s", warning);
             m_reader = Reader::from_plan(decoded.plan);
-            m_max_host = decoded.grid.values().max;
-            m_max = dr::opaque<Float>(m_max_host);
             loader::GridSummary summary = decoded.grid.summary();
+            // max(): what lookups inside the volume can return (the active
+            // box, and the ring trilinear stencils reach), not every value
+            // the grid stores; lookups are clamped to it (see lookup())
+            m_grid_max_host = decoded.grid.values().max;
+            m_max_host = loader::max_in_box(decoded.grid, loader::lookup_box(summary, !m_nearest));
+            m_max = dr::opaque<Float>(m_max_host);
             m_grid_name = summary.name; // the grid's own name (GridData)
 
             if constexpr (!dr::is_jit_v<Float>) {
@@ -464,7 +482,8 @@ private:
     // Host
     ScalarVector3i m_index_min_host;
     ScalarVector3i m_resolution_host;
-    ScalarFloat m_max_host = 0.f;
+    ScalarFloat m_max_host = 0.f;      // max(): the largest value lookups in the box return
+    ScalarFloat m_grid_max_host = 0.f; // the largest value the grid stores
     ScalarFloat m_background_host = 0.f;
     size_t m_grid_bytes = 0;      // the grid's bytes
     size_t m_backend_bytes = 0;   // what the backend holds for it (padded to 64 B)

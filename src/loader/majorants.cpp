@@ -1,0 +1,172 @@
+// src/loader/majorants.cpp -- max_in_box() (see majorants.h): a walk from the
+// root tiles down through the nodes whose region meets the box.
+
+#include <nanovdb_loader/majorants.h>
+
+#include "detail.h"
+
+#include <algorithm>
+#include <climits>
+#include <cmath>
+#include <limits>
+#include <unordered_set>
+
+namespace nanovdb_loader {
+
+namespace {
+
+using namespace detail;
+
+/// Entries [first, last] per axis of a node whose first voxel is `origin`,
+/// with 2^log2dim entries per axis of 2^log2entry voxels each, that meet
+/// `box`; false if none
+bool entry_range(const int64_t origin[3], uint32_t log2dim, uint32_t log2entry,
+                 const IndexBox &box, int64_t first[3], int64_t last[3]) {
+    const int64_t span = int64_t(1) << (log2dim + log2entry);
+    for (int a = 0; a < 3; ++a) {
+        const int64_t lo = std::max<int64_t>(box.lo[a], origin[a]),
+                      hi = std::min<int64_t>(box.hi[a], origin[a] + span - 1);
+        if (lo > hi)
+            return false;
+        first[a] = (lo - origin[a]) >> log2entry;
+        last[a] = (hi - origin[a]) >> log2entry;
+    }
+    return true;
+}
+
+class BoxMax {
+public:
+    BoxMax(const ValidatedGrid &grid, const IndexBox &box)
+        : m_grid(grid), m_box(box), m_buf(grid.data()),
+          m_c(*layout::grid_type_constants(grid.summary().grid_type)) {}
+
+    float run() {
+        const GridSummary &s = m_grid.summary();
+        const uint64_t root = uint64_t(s.root_word) * 4;
+        std::unordered_set<uint64_t> keys;
+        uint64_t covered = 0; // distinct root tiles whose block meets the box
+        for (uint64_t t = 0; t < s.root_tile_count; ++t) {
+            const uint64_t tile = root + m_c.root_size + t * m_c.root_tile_size;
+            const uint64_t key = load<uint64_t>(m_buf + tile + layout::ROOT_TILE_OFF_KEY);
+            // Keys hold three 20-bit block coordinates in 21-bit fields: a tile
+            // with a bit set outside them matches no coordinate
+            constexpr uint64_t unused = (uint64_t(1) << 20) | (uint64_t(1) << 41) |
+                                        (uint64_t(3) << 62);
+            if ((key & unused) || !keys.insert(key).second)
+                continue; // unreachable, or a later tile with the same key
+            int32_t o[3];
+            layout::key_to_origin(key, o);
+            const int64_t origin[3] = { o[0], o[1], o[2] };
+            int64_t first[3], last[3];
+            if (!entry_range(origin, 0, layout::ROOT_TILE_LOG2, m_box, first, last))
+                continue;
+            ++covered;
+            const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
+            if (child == 0)
+                include(load<float>(m_buf + tile + m_c.root_tile_off_value));
+            else
+                internal(2, uint64_t(int64_t(root) + child), origin);
+        }
+        // Blocks of 4096^3 the box meets; where a root tile covers fewer, a
+        // lookup in the box can fall through to the background
+        uint64_t blocks = 1;
+        for (int a = 0; a < 3; ++a)
+            blocks *= uint64_t((int64_t(m_box.hi[a]) >> layout::ROOT_TILE_LOG2) -
+                               (int64_t(m_box.lo[a]) >> layout::ROOT_TILE_LOG2) + 1);
+        if (covered < blocks)
+            include(load<float>(m_buf + root + m_c.root_off_background));
+        return m_any ? m_max : std::numeric_limits<float>::quiet_NaN();
+    }
+
+private:
+    void include(float v) {
+        if (std::isnan(v))
+            return;
+        m_max = m_any ? std::max(m_max, v) : v;
+        m_any = true;
+    }
+
+    /// An upper (level 2) or lower (level 1) node at byte `node`
+    void internal(int level, uint64_t node, const int64_t origin[3]) {
+        const bool upper = level == 2;
+        const uint32_t log2dim = upper ? layout::UPPER_LOG2_DIM : layout::LOWER_LOG2_DIM,
+                       log2entry = upper ? layout::UPPER_ENTRY_LOG2 : layout::LOWER_ENTRY_LOG2;
+        const uint64_t mask_off = upper ? layout::UPPER_OFF_CHILD_MASK : layout::LOWER_OFF_CHILD_MASK,
+                       table_off = upper ? m_c.upper_off_table : m_c.lower_off_table;
+        int64_t first[3], last[3];
+        if (!entry_range(origin, log2dim, log2entry, m_box, first, last))
+            return;
+        for (int64_t i = first[0]; i <= last[0]; ++i)
+            for (int64_t j = first[1]; j <= last[1]; ++j)
+                for (int64_t k = first[2]; k <= last[2]; ++k) {
+                    const uint64_t e = (uint64_t(i) << (2 * log2dim)) | (uint64_t(j) << log2dim) |
+                                       uint64_t(k);
+                    const uint64_t entry = node + table_off + e * m_c.table_stride;
+                    const bool child =
+                        (load<uint32_t>(m_buf + node + mask_off + 4 * (e >> 5)) >> (e & 31)) & 1u;
+                    if (!child) {
+                        include(load<float>(m_buf + entry));
+                        continue;
+                    }
+                    const int64_t sub[3] = { origin[0] + (i << log2entry),
+                                             origin[1] + (j << log2entry),
+                                             origin[2] + (k << log2entry) };
+                    const uint64_t target = uint64_t(int64_t(node) + load<int64_t>(m_buf + entry));
+                    if (upper)
+                        internal(1, target, sub);
+                    else
+                        leaf(target, sub);
+                }
+    }
+
+    void leaf(uint64_t node, const int64_t origin[3]) {
+        int64_t first[3], last[3];
+        if (!entry_range(origin, layout::LEAF_LOG2_DIM, 0, m_box, first, last))
+            return;
+        const GridSummary &s = m_grid.summary();
+        const bool whole = first[0] == 0 && first[1] == 0 && first[2] == 0 && last[0] == 7 &&
+                           last[1] == 7 && last[2] == 7;
+        if (whole) {
+            include(m_grid.leaf_max()[size_t((node - s.node_begin[0]) / m_c.leaf_size)]);
+            return;
+        }
+        for (int64_t i = first[0]; i <= last[0]; ++i)
+            for (int64_t j = first[1]; j <= last[1]; ++j)
+                for (int64_t k = first[2]; k <= last[2]; ++k)
+                    include(load<float>(m_buf + node + m_c.leaf_off_table +
+                                        4 * uint64_t((i << 6) | (j << 3) | k)));
+    }
+
+    const ValidatedGrid &m_grid;
+    const IndexBox m_box;
+    const uint8_t *m_buf;
+    const layout::GridTypeConstants &m_c;
+    float m_max = 0.f;
+    bool m_any = false;
+};
+
+} // namespace
+
+IndexBox lookup_box(const GridSummary &s, bool trilinear) {
+    IndexBox box;
+    for (int a = 0; a < 3; ++a) {
+        box.lo[a] = s.empty ? 0 : s.bbox_min[a];
+        box.hi[a] = s.empty ? 0 : s.bbox_max[a];
+        if (!trilinear)
+            continue;
+        if (box.lo[a] == INT32_MIN || box.hi[a] == INT32_MAX) {
+            box.lo[a] = INT32_MIN; // the ring wraps around: all of the axis
+            box.hi[a] = INT32_MAX;
+        } else {
+            --box.lo[a];
+            ++box.hi[a];
+        }
+    }
+    return box;
+}
+
+float max_in_box(const ValidatedGrid &grid, const IndexBox &box) {
+    return BoxMax(grid, box).run();
+}
+
+} // namespace nanovdb_loader
