@@ -85,6 +85,7 @@ want() { case " $STEPS " in *" $1 "*) return 0 ;; *) return 1 ;; esac; }
 if want doctest; then
   step doctest_translation "$H/build/bin/test_translation"
   step doctest_io "$H/build/bin/test_io"
+  step doctest_hdda "$H/build/bin/test_hdda"
 fi
 if want pytest; then
   step pytest "$PYTHON" -m pytest tests -p no:cacheprovider -rs --durations=15 \
