@@ -12,9 +12,11 @@
 // the box reaches space no root tile covers.
 #pragma once
 
+#include <nanovdb_drjit/majorant_table.h>
 #include <nanovdb_loader/validation.h>
 
 #include <cstdint>
+#include <vector>
 
 namespace nanovdb_loader {
 
@@ -33,5 +35,43 @@ IndexBox lookup_box(const GridSummary &summary, bool trilinear);
 /// `box` returns. O(nodes the box touches), plus 512 values for each leaf
 /// the box cuts.
 float max_in_box(const ValidatedGrid &grid, const IndexBox &box);
+
+/**
+ * Per-node majorants for majorant tracking (nanovdb_drjit/majorant_walk.h):
+ * for every region the walk can stop at, an upper bound of every value a
+ * lookup returns at a point of that region, with either filter. A lookup at
+ * a point of a region reads the region's voxels and, where the point lies
+ * near its border (trilinear stencils, or a rounding error of half a voxel),
+ * the voxels of the one-voxel ring around it; so every bound covers the
+ * region grown by one voxel on every side ("ringed"). All are exact maxima
+ * (NaN skipped) over the sets below; `values` follows `layout`
+ * (nanovdb_drjit/majorant_table.h):
+ *
+ *  - leaf: the max over its 8^3 voxels and their ring ([o - 1, o + 8]^3);
+ *  - lower / upper node, M: the max over its whole ringed region
+ *    ([o - 1, o + 128]^3, [o - 1, o + 4096]^3), that is over the ringed
+ *    regions of all its entries;
+ *  - lower / upper node, R: the max of the ring of those of its tiles whose
+ *    ring holds a value above the tile's own (-Inf if there is none), so
+ *    that max(tile value, R) bounds every tile of the node with its ring;
+ *  - root tile: a tile with a child: that upper node's M; without child:
+ *    the max over the ringed 4096^3 block; a tile that a lookup never
+ *    reaches (a later tile with the key of an earlier one): -Inf;
+ *  - background: the max of the background and of the voxels of every
+ *    block a root tile covers that border space no root tile covers.
+ *
+ * A node reached through several parents (possible in a hand-made file)
+ * gets the max over all of them; a node no parent reaches keeps -Inf.
+ * O(entries of the tree x 26 neighbours), plus the border voxels of those
+ * neighbours whose own maximum could raise a bound.
+ */
+struct NodeMajorants {
+    nanovdb_drjit::MajorantTableLayout layout;
+    std::vector<float> values;
+
+    uint64_t bytes() const { return uint64_t(values.size()) * sizeof(float); }
+};
+
+NodeMajorants node_majorants(const ValidatedGrid &grid);
 
 } // namespace nanovdb_loader

@@ -1,0 +1,270 @@
+// Per-node majorants (src/loader/node_majorants.cpp) against independent
+// references: NanoVDB's own accessor, read voxel by voxel over a leaf and its
+// ring, and max_in_box() (itself tested box for box against that accessor in
+// test_majorants.cpp) over the regions and rings of lower nodes, upper nodes,
+// tiles and the background. The nodes and their origins come from NanoVDB's
+// node structs, not from our traversal.
+
+#include <doctest/doctest.h>
+
+#include "fixtures.h"
+#include "grids.h"
+
+#include <nanovdb_loader/majorants.h>
+
+#include <climits>
+#include <map>
+
+namespace {
+
+constexpr float kNone = -std::numeric_limits<float>::infinity();
+
+/// An inclusive index box, clipped to int32 (returns false if nothing is left)
+bool make_box(int64_t x0, int64_t y0, int64_t z0, int64_t x1, int64_t y1, int64_t z1,
+              nio::IndexBox &b) {
+    const int64_t lo[3] = { x0, y0, z0 }, hi[3] = { x1, y1, z1 };
+    for (int a = 0; a < 3; ++a) {
+        const int64_t l = std::max<int64_t>(lo[a], INT32_MIN), h = std::min<int64_t>(hi[a], INT32_MAX);
+        if (l > h)
+            return false;
+        b.lo[a] = int32_t(l);
+        b.hi[a] = int32_t(h);
+    }
+    return true;
+}
+
+/// max_in_box with -Inf for "no value" (max_in_box returns NaN then)
+float box_max(const nio::ValidatedGrid &v, int64_t x0, int64_t y0, int64_t z0, int64_t x1,
+              int64_t y1, int64_t z1) {
+    nio::IndexBox b;
+    if (!make_box(x0, y0, z0, x1, y1, z1, b))
+        return kNone;
+    const float m = nio::max_in_box(v, b);
+    return std::isnan(m) ? kNone : m;
+}
+
+/// The max over the ring of the D^3 cell at o (six slabs)
+float ring_max(const nio::ValidatedGrid &v, const nanovdb::Coord &o, int64_t D) {
+    const int64_t x = o[0], y = o[1], z = o[2];
+    float m = kNone;
+    m = std::max(m, box_max(v, x - 1, y - 1, z - 1, x - 1, y + D, z + D));
+    m = std::max(m, box_max(v, x + D, y - 1, z - 1, x + D, y + D, z + D));
+    m = std::max(m, box_max(v, x, y - 1, z - 1, x + D - 1, y - 1, z + D));
+    m = std::max(m, box_max(v, x, y + D, z - 1, x + D - 1, y + D, z + D));
+    m = std::max(m, box_max(v, x, y, z - 1, x + D - 1, y + D - 1, z - 1));
+    m = std::max(m, box_max(v, x, y, z + D, x + D - 1, y + D - 1, z + D));
+    return m;
+}
+
+/// Does this cell's ring stay inside int32 (where our wrap-around and
+/// max_in_box's clipped boxes agree)?
+bool ring_in_range(const nanovdb::Coord &o, int64_t D) {
+    for (int a = 0; a < 3; ++a)
+        if (int64_t(o[a]) - 1 < INT32_MIN || int64_t(o[a]) + D > INT32_MAX)
+            return false;
+    return true;
+}
+
+float nan_to_none(float v) { return std::isnan(v) ? kNone : v; }
+
+/// The first voxel of entry n of an internal node at `origin` (log2 of its
+/// entries per axis, log2 of an entry's voxels per axis)
+nanovdb::Coord entry_origin(const nanovdb::Coord &origin, uint32_t n, int log2dim, int log2entry) {
+    const int32_t mask = (1 << log2dim) - 1;
+    return origin + nanovdb::Coord(int32_t(n >> (2 * log2dim)) << log2entry,
+                                   int32_t((n >> log2dim) & mask) << log2entry,
+                                   int32_t(n & mask) << log2entry);
+}
+
+/// Origins of every node the root reaches, from the root tiles' keys down
+/// (NanoVDB's node structs; a node's own bbox may be empty)
+struct Origins {
+    std::map<const void *, nanovdb::Coord> of;
+    explicit Origins(const nanovdb::FloatGrid &grid) {
+        const auto &root = grid.tree().root();
+        for (uint32_t t = 0; t < root.tileCount(); ++t) {
+            const auto *tile = root.data()->tile(t);
+            if (!tile->isChild())
+                continue;
+            const auto *up = root.data()->getChild(tile);
+            of[up] = tile->origin();
+            for (uint32_t n = 0; n < 32768; ++n) {
+                if (!up->data()->isChild(n))
+                    continue;
+                const auto *lo = up->data()->getChild(n);
+                const nanovdb::Coord lo_origin = entry_origin(tile->origin(), n, 5, 7);
+                of[lo] = lo_origin;
+                for (uint32_t m = 0; m < 4096; ++m)
+                    if (lo->data()->isChild(m))
+                        of[lo->data()->getChild(m)] = entry_origin(lo_origin, m, 4, 3);
+            }
+        }
+    }
+};
+
+/// The node's R by definition: the largest ring of a tile that exceeds the tile
+template <typename Node>
+float ring_bound(const nio::ValidatedGrid &v, const Node &node, const nanovdb::Coord &origin,
+                 uint32_t entries, int log2dim, int log2entry, float &M_tiles) {
+    float R = kNone;
+    for (uint32_t n = 0; n < entries; ++n) {
+        if (node.data()->isChild(n))
+            continue;
+        const float t = nan_to_none(node.data()->getValue(n));
+        const nanovdb::Coord o = entry_origin(origin, n, log2dim, log2entry);
+        const int64_t entry_dim = int64_t(1) << log2entry;
+        const float r = std::max(t, ring_max(v, o, entry_dim));
+        M_tiles = std::max(M_tiles, r);
+        if (r > t)
+            R = std::max(R, r);
+    }
+    return R;
+}
+
+struct Counts {
+    size_t leaves = 0, lowers = 0, uppers = 0, tiles = 0, mismatches = 0;
+};
+
+void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with_R) {
+    const nanovdb::FloatGrid &grid = *h.grid<float>();
+    const nio::ValidatedGrid v = validate_handle(h, name);
+    const nio::NodeMajorants maj = nio::node_majorants(v);
+    const auto &L = maj.layout;
+    const auto &tree = grid.tree();
+    const Origins origins(grid);
+    Counts n;
+    auto check = [&](float got, float want, const std::string &what) {
+        if (got != want && ++n.mismatches <= 8) {
+            INFO(name << ": " << what << ": got " << got << ", want " << want);
+            CHECK(got == want);
+        }
+    };
+    CHECK(maj.values.size() == L.size);
+    CHECK(L.size == tree.nodeCount(0) + 2 * tree.nodeCount(1) + 2 * tree.nodeCount(2) +
+                        tree.root().tileCount() + 1);
+
+    // Leaves: voxel by voxel through NanoVDB's accessor
+    auto acc = grid.getAccessor();
+    const auto *leaf = tree.getFirstNode<0>();
+    for (uint32_t i = 0; i < tree.nodeCount(0); ++i) {
+        const nanovdb::Coord o = origins.of.at(&leaf[i]);
+        if (!ring_in_range(o, 8))
+            continue;
+        float want = kNone;
+        for (int x = -1; x <= 8; ++x)
+            for (int y = -1; y <= 8; ++y)
+                for (int z = -1; z <= 8; ++z)
+                    want = std::max(want, nan_to_none(acc.getValue(o + nanovdb::Coord(x, y, z))));
+        check(maj.values[i], want, "leaf " + std::to_string(i));
+        ++n.leaves;
+    }
+    // Lower nodes: M over the ringed region, R over the tiles' rings
+    const auto *lower = tree.getFirstNode<1>();
+    for (uint32_t i = 0; i < tree.nodeCount(1); ++i) {
+        const nanovdb::Coord o = origins.of.at(&lower[i]);
+        if (!ring_in_range(o, 128))
+            continue;
+        float M_tiles = kNone;
+        const float R = ring_bound(v, lower[i], o, 4096, 4, 3, M_tiles);
+        check(maj.values[L.lower_slot + 2 * i],
+              box_max(v, o[0] - 1, o[1] - 1, o[2] - 1, o[0] + 128, o[1] + 128, o[2] + 128),
+              "lower " + std::to_string(i) + " M");
+        check(maj.values[L.lower_slot + 2 * i + 1], R, "lower " + std::to_string(i) + " R");
+        ++n.lowers;
+    }
+    // Upper nodes: M always, R for the first few (32768 tiles each)
+    const auto *upper = tree.getFirstNode<2>();
+    for (uint32_t i = 0; i < tree.nodeCount(2); ++i) {
+        const nanovdb::Coord o = origins.of.at(&upper[i]);
+        if (!ring_in_range(o, 4096))
+            continue;
+        check(maj.values[L.upper_slot + 2 * i],
+              box_max(v, o[0] - 1, o[1] - 1, o[2] - 1, o[0] + 4096, o[1] + 4096, o[2] + 4096),
+              "upper " + std::to_string(i) + " M");
+        if (i < max_uppers_with_R) {
+            float M_tiles = kNone;
+            const float R = ring_bound(v, upper[i], o, 32768, 5, 7, M_tiles);
+            check(maj.values[L.upper_slot + 2 * i + 1], R, "upper " + std::to_string(i) + " R");
+        }
+        ++n.uppers;
+    }
+    // Root tiles, and the background
+    const auto &root = tree.root();
+    std::vector<nanovdb::Coord> covered;
+    for (uint32_t t = 0; t < root.tileCount(); ++t) {
+        const auto *tile = root.data()->tile(t);
+        const nanovdb::Coord o = tile->origin();
+        covered.push_back(o);
+        if (!ring_in_range(o, 4096))
+            continue;
+        const float want =
+            tile->isChild()
+                ? maj.values[L.upper_slot + 2 * uint32_t(root.data()->getChild(tile) - upper)]
+                : std::max(nan_to_none(tile->value), ring_max(v, o, 4096));
+        check(maj.values[L.tile_slot + t], want, "root tile " + std::to_string(t));
+        ++n.tiles;
+    }
+    auto is_covered = [&](const nanovdb::Coord &c) {
+        return std::find(covered.begin(), covered.end(), c) != covered.end();
+    };
+    float bg = nan_to_none(root.background());
+    bool in_range = true;
+    for (const nanovdb::Coord &o : covered) {
+        if (!ring_in_range(o, 4096)) {
+            in_range = false;
+            continue;
+        }
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dz = -1; dz <= 1; ++dz) {
+                    if ((!dx && !dy && !dz) ||
+                        is_covered(o + nanovdb::Coord(dx * 4096, dy * 4096, dz * 4096)))
+                        continue;
+                    // The layer of the block o that touches the neighbour
+                    const int d[3] = { dx, dy, dz };
+                    int64_t lo[3], hi[3];
+                    for (int a = 0; a < 3; ++a) {
+                        lo[a] = d[a] > 0 ? int64_t(o[a]) + 4095 : o[a];
+                        hi[a] = d[a] < 0 ? int64_t(o[a]) : int64_t(o[a]) + 4095;
+                    }
+                    bg = std::max(bg, box_max(v, lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]));
+                }
+    }
+    if (in_range)
+        check(maj.values[L.background_slot], bg, "background");
+    MESSAGE(name, ": ", n.leaves, " leaves, ", n.lowers, " lower, ", n.uppers, " upper nodes, ",
+            n.tiles, " root tiles checked; ", n.mismatches, " mismatches; ", maj.bytes(),
+            " bytes of majorants for a ", h.size(), "-byte grid");
+    CHECK(n.mismatches == 0);
+}
+
+} // namespace
+
+TEST_CASE("node majorants equal the maxima over their ringed regions") {
+    // Built once for all subcases (doctest re-runs this body for each)
+    static const Handle sphere = fog_sphere(), torus = ls_torus(), tiles = tile_grid(),
+                        nans = nan_inf_grid(), empty = empty_grid();
+    static std::vector<std::pair<std::string, Handle>> generated;
+    if (generated.empty())
+        for (const char *g : { "fog_sphere", "noisy_cloud", "random_cube", "lower_tiles",
+                               "upper_tiles", "root_tiles_negative", "single_voxel",
+                               "nonzero_background" })
+            generated.emplace_back(g, nvdb_test::make_nano_grid(g));
+    SUBCASE("fog sphere with its level set's background") { check_grid("fog sphere", sphere, 1); }
+    SUBCASE("level-set torus") { check_grid("torus", torus, 1); }
+    SUBCASE("tiles at every level") { check_grid("tiles", tiles, 4); }
+    SUBCASE("NaN and infinite voxels") { check_grid("nan_inf", nans, 1); }
+    SUBCASE("empty grid") { check_grid("empty", empty, 1); }
+    for (const auto &[name, handle] : generated) {
+        SUBCASE(name.c_str()) { check_grid(name, handle, 1); }
+    }
+}
+
+TEST_CASE("node majorants: the bytes stay far below the grid's") {
+    static const Handle cloud = nvdb_test::make_nano_grid("noisy_cloud", 2);
+    const nio::ValidatedGrid v = validate_handle(cloud, "cloud");
+    const nio::NodeMajorants maj = nio::node_majorants(v);
+    MESSAGE("noisy_cloud x2: ", maj.bytes(), " bytes of majorants, grid ", cloud.size(),
+            " bytes: ", 100.0 * double(maj.bytes()) / double(cloud.size()), " %");
+    CHECK(double(maj.bytes()) <= 0.01 * double(cloud.size()));
+}
