@@ -1,0 +1,410 @@
+/*
+    The majorant walk (include/nanovdb_drjit/majorant_walk.h) on random rays
+    through the test grids:
+
+      - its segments tile [tmin, tmax] without gaps or overlaps;
+      - the bound of every segment covers every value a lookup reads at a
+        point of it: at 10^6 points per grid, the voxel a nearest lookup
+        reads and the 8 corners of the trilinear stencil, read by PNanoVDB's
+        C code (the independent reference), are all at most the bound;
+      - with coarse_limit = 0 every segment's bound is the bound of the
+        finest cell at its midpoint, found through NanoVDB's own node structs
+        and the loader's majorant table (a walk done by hand); thin nodes
+        (coarse_limit > 0) are crossed as one cell with the node's M;
+      - the LLVM walk equals the scalar walk bit for bit, step for step.
+*/
+
+#define PNANOVDB_C
+#define PNANOVDB_ADDRESS_64
+#include <nanovdb/PNanoVDB.h>
+
+#include <nanovdb_drjit/fast_readers.h>
+#include <nanovdb_drjit/majorant_walk.h>
+#include <nanovdb_loader/majorants.h>
+#include <nanovdb_loader/reader_policy.h>
+#include <nanovdb_loader/validation.h>
+#include <drjit/jit.h>
+#include <drjit-core/jit.h>
+
+#include <doctest/doctest.h>
+#include <grids.h>
+
+#include <nanovdb/util/OpenToNanoVDB.h>
+
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <vector>
+
+namespace ndr = nanovdb_drjit;
+namespace loader = nanovdb_loader;
+namespace dr = drjit;
+
+namespace {
+
+constexpr size_t RAY_COUNT = 4000;
+constexpr size_t POINTS_PER_GRID = 1000000;
+constexpr int MAX_STEPS = 400;
+
+using Handle = nanovdb::GridHandle<nanovdb::HostBuffer>;
+
+struct WalkGrid {
+    std::string name;
+    Handle handle;
+    std::vector<uint32_t> words;
+    loader::ReaderPlan plan;
+    loader::NodeMajorants majorants;
+    int32_t base[3];
+    int32_t lo[3], hi[3]; ///< the index box rays aim at
+};
+
+WalkGrid make_walk_grid(const std::string &name, Handle handle) {
+    WalkGrid g;
+    g.name = name;
+    g.handle = std::move(handle);
+    g.words.resize((g.handle.size() + 3) / 4);
+    std::memcpy(g.words.data(), g.handle.data(), g.handle.size());
+    loader::ValidatedGrid v = loader::validate_float_grid(name, g.words.data(), g.handle.size());
+    g.plan = loader::plan_readers(v);
+    g.majorants = loader::node_majorants(v);
+    const loader::GridSummary &s = v.summary();
+    for (int a = 0; a < 3; ++a) {
+        g.lo[a] = s.empty ? 0 : s.bbox_min[a];
+        g.hi[a] = s.empty ? 0 : s.bbox_max[a];
+        g.base[a] = int32_t(uint32_t(g.lo[a]) & ~4095u);
+    }
+    return g;
+}
+
+/// A tile grid with values at every level and a lower node that is thin
+Handle mixed_tiles() {
+    openvdb::initialize();
+    auto g = openvdb::FloatGrid::create(0.f);
+    auto &tree = g->tree();
+    tree.addTile(1, openvdb::Coord(8, 0, 0), 7.0f, true);     // lower tile
+    tree.addTile(2, openvdb::Coord(128, 0, 0), 0.5f, true);   // upper tile
+    tree.addTile(3, openvdb::Coord(4096, 0, 0), 2.0f, true);  // root tile
+    tree.setValue(openvdb::Coord(1, 2, 3), 3.0f);
+    tree.setValue(openvdb::Coord(7, 7, 7), 11.0f);            // next to the lower tile
+    tree.setValue(openvdb::Coord(-1, -1, -1), 0.25f);
+    for (int i = 0; i < 40; ++i)
+        tree.setValue(openvdb::Coord(200 + i, 30, 40 - i), 0.01f * float(i));
+    return nanovdb::openToNanoVDB(*g);
+}
+
+const std::vector<WalkGrid> &walk_grids() {
+    static std::vector<WalkGrid> grids = [] {
+        std::vector<WalkGrid> out;
+        for (const char *name : { "fog_sphere", "noisy_cloud", "random_cube", "lower_tiles",
+                                  "upper_tiles", "root_tiles_negative", "far_coords",
+                                  "single_voxel", "nonzero_background" })
+            out.push_back(make_walk_grid(name, nvdb_test::make_nano_grid(name)));
+        out.push_back(make_walk_grid("mixed_tiles", mixed_tiles()));
+        return out;
+    }();
+    return grids;
+}
+
+struct Ray {
+    float o[3], d[3], tmin, tmax, coarse_limit;
+};
+
+/// Rays from random points around the index box (cell space, relative to
+/// the base) to random points of it, at several speeds (|d|: voxels per
+/// unit of t); some axis-parallel, some starting late
+std::vector<Ray> random_rays(const WalkGrid &g, uint64_t seed, bool coarse) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<Ray> rays(RAY_COUNT);
+    for (size_t i = 0; i < RAY_COUNT; ++i) {
+        Ray &r = rays[i];
+        double from[3], to[3], len = 0;
+        for (int a = 0; a < 3; ++a) {
+            const double lo = double(g.lo[a]) - double(g.base[a]),
+                         ext = double(g.hi[a]) - double(g.lo[a]) + 1.0;
+            // Far grids (far_coords) span millions of voxels: aim near the box corners too
+            const double span = std::min(ext, 600.0), margin = 24.0;
+            const double start = (i % 2 == 0) ? lo : lo + ext - span;
+            from[a] = start - margin + u(rng) * (span + 2 * margin);
+            to[a] = start + u(rng) * span;
+        }
+        if (i % 9 < 3) // axis-parallel on one axis
+            to[i % 3] = from[i % 3];
+        for (int a = 0; a < 3; ++a)
+            len += (to[a] - from[a]) * (to[a] - from[a]);
+        len = std::max(std::sqrt(len), 1e-3);
+        const double speed = (i % 4 == 0) ? 0.37 : (i % 4 == 1) ? 1.0 : (i % 4 == 2) ? 3.0 : 11.0;
+        for (int a = 0; a < 3; ++a) {
+            r.o[a] = float(from[a]);
+            r.d[a] = float((to[a] - from[a]) / len * speed);
+        }
+        r.tmin = (i % 5 == 0) ? float(u(rng) * 10.0 / speed) : 0.f;
+        r.tmax = float((len + 40.0) / speed);
+        r.coarse_limit = coarse ? float((i % 3) * 40.0 * u(rng)) : 0.f;
+    }
+    return rays;
+}
+
+struct Segment {
+    float t0, t1, majorant;
+};
+
+/// The scalar walk of one ray
+template <typename Buffer, typename Root>
+std::vector<Segment> walk_scalar(const Buffer &buf, const Root &root,
+                                 const ndr::MajorantGrid<uint32_t> &mg, const Ray &r) {
+    using V = dr::Array<float, 3>;
+    const V o(r.o[0], r.o[1], r.o[2]), d(r.d[0], r.d[1], r.d[2]);
+    ndr::MajorantWalk<float> w =
+        ndr::walk_begin(buf, root, mg, o, d, r.tmin, r.tmax, r.coarse_limit, true);
+    std::vector<Segment> out;
+    for (int s = 0; s < MAX_STEPS && ndr::walk_valid(w); ++s) {
+        out.push_back({ w.hdda.tmin, w.segment_end(), w.majorant });
+        ndr::walk_advance(buf, root, mg, w, o, d, r.coarse_limit, true);
+    }
+    return out;
+}
+
+ndr::MajorantGrid<uint32_t> scalar_majorants(const WalkGrid &g) {
+    return ndr::MajorantGrid<uint32_t>::make(g.majorants.layout, g.majorants.values, 1.f,
+                                             std::numeric_limits<float>::infinity(), g.base);
+}
+
+/// PNanoVDB's value at an absolute coordinate
+struct Reference {
+    pnanovdb_buf_t buf;
+    pnanovdb_root_handle_t root;
+    explicit Reference(const WalkGrid &g) {
+        buf.data = const_cast<uint32_t *>(g.words.data());
+        pnanovdb_grid_handle_t grid = { pnanovdb_address_null() };
+        root = pnanovdb_tree_get_root(buf, pnanovdb_grid_get_tree(buf, grid));
+    }
+    float value(int64_t i, int64_t j, int64_t k) const {
+        pnanovdb_coord_t ijk = { int32_t(uint32_t(i)), int32_t(uint32_t(j)), int32_t(uint32_t(k)) };
+        pnanovdb_uint32_t level;
+        return pnanovdb_read_float(buf, pnanovdb_root_get_value_address_and_level(
+                                            PNANOVDB_GRID_TYPE_FLOAT, buf, root, &ijk, &level));
+    }
+};
+
+/// The bound of the finest cell holding absolute voxel ijk, by hand: NanoVDB's
+/// node structs find the node, the loader's table gives its bound (nodes with
+/// M <= 0 are crossed whole, as the walk does with coarse_limit = 0)
+float expected_bound(const WalkGrid &g, const nanovdb::Coord &ijk) {
+    const auto &tree = g.handle.grid<float>()->tree();
+    const auto &root = tree.root();
+    const auto &L = g.majorants.layout;
+    const std::vector<float> &m = g.majorants.values;
+    auto clamp0 = [](float v) { return std::max(v, 0.f); };
+    const nanovdb::Coord block = ijk & ~4095;
+    for (uint32_t t = 0; t < root.tileCount(); ++t) {
+        const auto *tile = root.data()->tile(t);
+        if (tile->origin() != block)
+            continue;
+        if (!tile->isChild())
+            return clamp0(m[L.tile_slot + t]);
+        const auto *up = root.data()->getChild(tile);
+        const uint32_t ui = uint32_t(up - tree.getFirstNode<2>());
+        if (!(m[L.upper_slot + 2 * ui] > 0.f))
+            return 0.f;
+        const uint32_t nu = up->CoordToOffset(ijk);
+        if (!up->data()->isChild(nu))
+            return clamp0(std::max(up->data()->getValue(nu), m[L.upper_slot + 2 * ui + 1]));
+        const auto *lo = up->data()->getChild(nu);
+        const uint32_t li = uint32_t(lo - tree.getFirstNode<1>());
+        if (!(m[L.lower_slot + 2 * li] > 0.f))
+            return 0.f;
+        const uint32_t nl = lo->CoordToOffset(ijk);
+        if (!lo->data()->isChild(nl))
+            return clamp0(std::max(lo->data()->getValue(nl), m[L.lower_slot + 2 * li + 1]));
+        return clamp0(m[uint32_t(lo->data()->getChild(nl) - tree.getFirstNode<0>())]);
+    }
+    return clamp0(m[L.background_slot]);
+}
+
+} // namespace
+
+TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them") {
+    for (const WalkGrid &g : walk_grids()) {
+        SUBCASE(g.name.c_str()) {
+            ndr::Reader<uint32_t> reader = ndr::Reader<uint32_t>::from_plan(g.plan);
+            const ndr::MajorantGrid<uint32_t> mg = scalar_majorants(g);
+            const Reference ref(g);
+            std::mt19937_64 rng(17);
+            std::uniform_real_distribution<double> u(0.0, 1.0);
+            for (bool coarse : { false, true }) {
+                const std::vector<Ray> rays = random_rays(g, coarse ? 2 : 1, coarse);
+                size_t segments = 0, points = 0, gaps = 0, exceed = 0, wrong_bound = 0,
+                       truncated = 0;
+                const size_t per_ray = POINTS_PER_GRID / RAY_COUNT / 2;
+                for (const Ray &r : rays) {
+                    std::vector<Segment> segs = reader.apply(
+                        g.words.data(), [&](const auto &buf, const auto &root) {
+                            return walk_scalar(buf, root, mg, r);
+                        });
+                    if (r.tmin < r.tmax && segs.empty()) {
+                        ++gaps;
+                        continue;
+                    }
+                    if (segs.size() == size_t(MAX_STEPS)) {
+                        ++truncated;
+                        continue;
+                    }
+                    segments += segs.size();
+                    for (size_t s = 0; s < segs.size(); ++s) {
+                        const Segment &sg = segs[s];
+                        const float prev = s == 0 ? r.tmin : segs[s - 1].t1;
+                        // Contiguous; forward stepping may push a boundary by ~1e-6 relative
+                        if (!(std::fabs(sg.t0 - prev) <= 2e-6f * std::max(1.f, std::fabs(prev))) ||
+                            !(sg.t1 >= sg.t0))
+                            ++gaps;
+                        if (!coarse) {
+                            const double tm = 0.5 * (double(sg.t0) + double(sg.t1));
+                            nanovdb::Coord c;
+                            for (int a = 0; a < 3; ++a)
+                                c[a] = int32_t(uint32_t(int64_t(std::floor(r.o[a] + r.d[a] * tm)) +
+                                                        int64_t(g.base[a])));
+                            // Only where the midpoint is clear of a cell boundary
+                            bool clear = true;
+                            for (int a = 0; a < 3; ++a) {
+                                const double q = r.o[a] + r.d[a] * tm, f = q - std::floor(q);
+                                clear &= f > 1e-3 && f < 1 - 1e-3;
+                            }
+                            if (clear && sg.t1 - sg.t0 > 1e-3f &&
+                                expected_bound(g, c) != sg.majorant && ++wrong_bound <= 5) {
+                                INFO("segment [" << sg.t0 << ", " << sg.t1 << "] at " << c[0]
+                                                 << " " << c[1] << " " << c[2] << ": bound "
+                                                 << sg.majorant << ", expected "
+                                                 << expected_bound(g, c));
+                                CHECK(false);
+                            }
+                        }
+                    }
+                    if (!segs.empty() && std::fabs(segs.back().t1 - r.tmax) > 0.f)
+                        ++gaps;
+                    // Lookups at random points of random segments
+                    for (size_t k = 0; k < per_ray && !segs.empty(); ++k) {
+                        const Segment &sg = segs[rng() % segs.size()];
+                        const double t = sg.t0 + u(rng) * (double(sg.t1) - double(sg.t0));
+                        double q[3];
+                        for (int a = 0; a < 3; ++a)
+                            q[a] = double(r.o[a]) + double(r.d[a]) * t + double(g.base[a]);
+                        float v = ref.value(int64_t(std::floor(q[0])), int64_t(std::floor(q[1])),
+                                            int64_t(std::floor(q[2])));
+                        const int64_t b[3] = { int64_t(std::floor(q[0] - 0.5)),
+                                               int64_t(std::floor(q[1] - 0.5)),
+                                               int64_t(std::floor(q[2] - 0.5)) };
+                        for (int corner = 0; corner < 8; ++corner) {
+                            const float c = ref.value(b[0] + (corner & 1), b[1] + (corner >> 1 & 1),
+                                                      b[2] + (corner >> 2 & 1));
+                            if (c > v || std::isnan(v))
+                                v = c;
+                        }
+                        ++points;
+                        if (v > sg.majorant && ++exceed <= 5) {
+                            INFO("point t = " << t << " in [" << sg.t0 << ", " << sg.t1
+                                              << "]: value " << v << " > bound " << sg.majorant);
+                            CHECK(false);
+                        }
+                    }
+                }
+                const std::string label = g.name + (coarse ? " (coarse)" : "");
+                MESSAGE(label, ": ", rays.size(), " rays, ", segments,
+                        " segments, ", points, " points; ", gaps, " gaps, ", exceed,
+                        " bounds exceeded, ", wrong_bound, " wrong bounds, ", truncated,
+                        " truncated");
+                CHECK(gaps == 0);
+                CHECK(exceed == 0);
+                CHECK(wrong_bound == 0);
+                CHECK(truncated == 0);
+                CHECK(points >= POINTS_PER_GRID / 2 - RAY_COUNT);
+            }
+        }
+    }
+}
+
+TEST_CASE("majorant walk: LLVM equals scalar step for step") {
+    jit_init(1u << (uint32_t) JitBackend::LLVM);
+    using Float = dr::LLVMArray<float>;
+    using UInt32 = dr::uint32_array_t<Float>;
+    using Vec = dr::Array<Float, 3>;
+    for (const WalkGrid &g : walk_grids()) {
+        SUBCASE(g.name.c_str()) {
+            const std::vector<Ray> rays = random_rays(g, 3, true);
+            const size_t n = rays.size();
+            std::vector<float> f[9];
+            for (auto &v : f)
+                v.resize(n);
+            for (size_t i = 0; i < n; ++i) {
+                for (int a = 0; a < 3; ++a) {
+                    f[a][i] = rays[i].o[a];
+                    f[3 + a][i] = rays[i].d[a];
+                }
+                f[6][i] = rays[i].tmin;
+                f[7][i] = rays[i].tmax;
+                f[8][i] = rays[i].coarse_limit;
+            }
+            auto load = [&](int k) { return dr::load<Float>(f[k].data(), n); };
+            const Vec o(load(0), load(1), load(2)), d(load(3), load(4), load(5));
+            const Float tmin = load(6), tmax = load(7), limit = load(8);
+
+            UInt32 grid_words = dr::load<UInt32>(g.words.data(), g.words.size());
+            ndr::Reader<UInt32> reader = ndr::Reader<UInt32>::from_plan(g.plan);
+            const auto mg = ndr::MajorantGrid<UInt32>::make(
+                g.majorants.layout, g.majorants.values, 1.f,
+                std::numeric_limits<float>::infinity(), g.base);
+            const ndr::MajorantGrid<uint32_t> mgs = scalar_majorants(g);
+            ndr::Reader<uint32_t> sreader = ndr::Reader<uint32_t>::from_plan(g.plan);
+
+            std::vector<std::vector<Segment>> want(n);
+            for (size_t i = 0; i < n; ++i)
+                want[i] = sreader.apply(g.words.data(), [&](const auto &buf, const auto &root) {
+                    return walk_scalar(buf, root, mgs, rays[i]);
+                });
+
+            ndr::MajorantWalk<Float> w = reader.apply(grid_words, [&](const auto &b, const auto &r) {
+                return ndr::walk_begin(b, r, mg, o, d, tmin, tmax, limit, true);
+            });
+            size_t mismatches = 0, compared = 0;
+            for (int s = 0; s < MAX_STEPS; ++s) {
+                dr::eval(w);
+                std::vector<float> t0(n), t1(n), m(n);
+                std::vector<uint32_t> valid(n);
+                dr::store(t0.data(), w.hdda.tmin);
+                dr::store(t1.data(), w.segment_end());
+                dr::store(m.data(), w.majorant);
+                dr::store(valid.data(), dr::select(ndr::walk_valid(w), UInt32(1), UInt32(0)));
+                bool any = false;
+                for (size_t i = 0; i < n; ++i) {
+                    const bool has = size_t(s) < want[i].size();
+                    if (bool(valid[i]) != has) {
+                        ++mismatches;
+                        continue;
+                    }
+                    if (!has)
+                        continue;
+                    any = true;
+                    ++compared;
+                    const Segment &e = want[i][size_t(s)];
+                    if (std::memcmp(&e.t0, &t0[i], 4) || std::memcmp(&e.t1, &t1[i], 4) ||
+                        std::memcmp(&e.majorant, &m[i], 4)) {
+                        if (++mismatches <= 5) {
+                            INFO("ray " << i << " step " << s << ": scalar [" << e.t0 << ", "
+                                        << e.t1 << "] " << e.majorant << ", LLVM [" << t0[i]
+                                        << ", " << t1[i] << "] " << m[i]);
+                            CHECK(false);
+                        }
+                    }
+                }
+                if (!any)
+                    break;
+                reader.apply(grid_words, [&](const auto &b, const auto &r) {
+                    ndr::walk_advance(b, r, mg, w, o, d, limit, ndr::walk_valid(w));
+                    return 0;
+                });
+            }
+            MESSAGE(g.name, ": ", compared, " segments compared, ", mismatches, " mismatches");
+            CHECK(mismatches == 0);
+        }
+    }
+}
