@@ -6,10 +6,13 @@
 
 #include <nanovdb_drjit/backend_buffer.h>
 #include <nanovdb_drjit/fast_readers.h>
+#include <nanovdb_drjit/majorant_walk.h>
 #include <nanovdb_drjit/stencil.h>
 #include <nanovdb_loader/load.h>
 #include <nanovdb_loader/majorants.h>
+#include <nanovdb_mitsuba/local_majorants.h>
 
+#include <atomic>
 #include <cstdlib>
 #include <cstring>
 #include <memory>
@@ -66,6 +69,13 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
  * - to_world
    - |transform|
    - Transformation applied to the volume's local space. (Default: identity)
+
+ * - count_lookups
+   - |bool|
+   - A benchmarking aid: count the lookups (``eval*`` calls, per lane) and
+     the steps of majorant walks (see the ``volpathlocal`` integrator), at
+     the cost of an atomic add each; ``to_string()`` reports both counts
+     (``lookup_count``, ``walk_step_count``). (Default: ``false``)
 
 This plugin renders sparse volumes stored as NanoVDB grids directly, without
 a dense conversion: a cloud that needs hundreds of megabytes as a dense
@@ -124,10 +134,14 @@ grids are supported; other grid types fail with a message that names them.
 */
 
 template <typename Float, typename Spectrum>
-class NanoVDBVolume final : public Volume<Float, Spectrum> {
+class NanoVDBVolume final : public Volume<Float, Spectrum>,
+                            public LocalMajorants<Float, Spectrum> {
 public:
     MI_IMPORT_BASE(Volume, update_bbox, m_to_local, m_bbox, m_channel_count)
     MI_IMPORT_TYPES()
+    using Walk = typename LocalMajorants<Float, Spectrum>::Walk;
+    using WalkRay = typename LocalMajorants<Float, Spectrum>::WalkRay;
+    using Array3f = dr::Array<Float, 3>;
 
     /// The grid's 32-bit words on the backend: a JIT array (LLVM: mapped host
     /// memory; CUDA: device memory), or a plain host allocation on scalars
@@ -155,12 +169,20 @@ public:
                   "one of: \"error\" or \"clamp\"", m_filename, invalid);
 
         m_use_grid_transform = props.get<bool>("use_grid_transform", false);
+        m_count = props.get<bool>("count_lookups", false);
+        if constexpr (dr::is_jit_v<Float>) {
+            if (m_count) {
+                m_counters = dr::zeros<UInt64>(2);
+                dr::make_opaque(m_counters);
+            }
+        }
         std::string selector(props.get<std::string_view>("grid", ""));
 
         nanovdb_loader::GridSummary summary = load_grid(selector);
         set_index_box(summary);
         if (m_use_grid_transform)
             set_grid_transform(summary);
+        set_cell_transform(summary);
         m_channel_count = 1;
         Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
             m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
@@ -222,11 +244,56 @@ public:
             << "  grid_max = " << m_grid_max_host << "," << std::endl
             << "  bytes = " << m_grid_bytes << "," << std::endl
             << "  backend_bytes = " << m_backend_bytes << "," << std::endl
+            << "  majorant_bytes = " << m_majorant_bytes << "," << std::endl
+            << counters_string()
             << "  reader = " << (m_reader.root_indexed ? "root index" : "root search")
             << (m_reader.compact_offsets ? ", 32-bit child offsets" : ", 64-bit child offsets")
             << std::endl
             << "]";
         return oss.str();
+    }
+
+    // =====================================================================
+    //  Local majorants (nanovdb_mitsuba/local_majorants.h): the walk of
+    //  nanovdb_drjit/majorant_walk.h in "cell space" (voxel ijk covers
+    //  [ijk, ijk + 1)^3, relative to a multiple of 4096 near the box)
+    // =====================================================================
+
+    // No MI_MASK_ARGUMENT here: on scalar variants it would make every call
+    // active, and the walk is stepped with masks (a lane that met a null
+    // collision stays in its segment).
+
+    WalkRay walk_ray(const Ray3f &ray, const Float &thin_depth, Mask /* active */) const override {
+        WalkRay r;
+        for (int i = 0; i < 3; ++i) {
+            r.origin[i] = m_cell_from_world(i, 3);
+            r.direction[i] = 0.f;
+            for (int j = 0; j < 3; ++j) {
+                r.origin[i] = dr::fmadd(m_cell_from_world(i, j), ray.o[j], r.origin[i]);
+                r.direction[i] = dr::fmadd(m_cell_from_world(i, j), ray.d[j], r.direction[i]);
+            }
+        }
+        // A chord through a cell of D voxels is at most D sqrt(3) / |direction| long in t
+        r.coarse_limit = thin_depth * dr::norm(r.direction) * 0.57735026918962576f;
+        return r;
+    }
+
+    Walk walk_begin(const WalkRay &r, const Float &tmin, const Float &tmax,
+                    Mask active) const override {
+        count(1, active);
+        return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+            return nanovdb_drjit::walk_begin(buf, root, m_majorants, Array3f(r.origin),
+                                             Array3f(r.direction), tmin, tmax, r.coarse_limit,
+                                             active);
+        });
+    }
+
+    Mask walk_advance(Walk &walk, const WalkRay &r, Mask active) const override {
+        count(1, active);
+        return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+            return nanovdb_drjit::walk_advance(buf, root, m_majorants, walk, Array3f(r.origin),
+                                               Array3f(r.direction), r.coarse_limit, active);
+        });
     }
 
     MI_DECLARE_CLASS(NanoVDBVolume)
@@ -248,6 +315,7 @@ private:
     /// max(), so that max() bounds every lookup, as a majorant must.
     Float lookup(const Interaction3f &it, Mask active) const {
         MI_MASK_ARGUMENT(active);
+        count(0, active);
         Vector3f rel; // index position relative to m_index_min
         if (!m_use_grid_transform) {
             Point3f p = m_to_local * it.p;
@@ -263,6 +331,32 @@ private:
                 return value_at(index_add(index_floor(rel + .5f), m_index_min), active);
         }
         return trilinear_at(rel, active);
+    }
+
+    /// count_lookups: adds the active lanes to counter `which` (0: lookups,
+    /// 1: walk steps). A benchmarking aid: an atomic add per call.
+    void count(int which, const Mask &active) const {
+        if (!m_count)
+            return;
+        if constexpr (dr::is_jit_v<Float>)
+            dr::scatter_reduce(ReduceOp::Add, m_counters, UInt64(1), UInt32(which), active);
+        else if (active)
+            m_scalar_counters[which].fetch_add(1, std::memory_order_relaxed);
+    }
+
+    std::string counters_string() const {
+        if (!m_count)
+            return "";
+        uint64_t c[2];
+        if constexpr (dr::is_jit_v<Float>) {
+            dr::eval(m_counters);
+            dr::store(c, m_counters);
+        } else {
+            for (int i = 0; i < 2; ++i)
+                c[i] = m_scalar_counters[i].load();
+        }
+        return "  lookup_count = " + std::to_string(c[0]) + ",\n  walk_step_count = " +
+               std::to_string(c[1]) + ",\n";
     }
 
     /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal),
@@ -379,6 +473,17 @@ private:
             m_max_host = loader::max_in_box(decoded.grid, loader::lookup_box(summary, !m_nearest));
             m_max = dr::opaque<Float>(m_max_host);
             m_grid_name = summary.name; // the grid's own name (GridData)
+            // Per-node bounds for majorant tracking, raised by 2^-20 for the
+            // few ulps by which rounded trilinear weights can overshoot
+            loader::NodeMajorants majorants = loader::node_majorants(decoded.grid);
+            int32_t base[3];
+            for (int k = 0; k < 3; ++k)
+                base[k] = summary.empty ? 0 : int32_t(uint32_t(summary.bbox_min[k]) & ~4095u);
+            m_majorants = nanovdb_drjit::MajorantGrid<UInt32>::make(
+                majorants.layout, majorants.values, 1.f + 0x1p-20f, m_max_host, base);
+            m_majorant_bytes = (size_t) majorants.bytes();
+            for (int k = 0; k < 3; ++k)
+                m_cell_base_host[k] = base[k];
 
             if constexpr (!dr::is_jit_v<Float>) {
                 m_grid = std::move(host);
@@ -446,6 +551,7 @@ private:
             for (int c = 0; c < 4; ++c)
                 to_local(r, c) = (double) m_to_local.matrix(r, c);
         Matrix4d m = index_from_grid * to_local;
+        m_index_from_world_host = m;
         for (int r = 0; r < 4; ++r)
             for (int c = 0; c < 4; ++c)
                 m_index_from_world(r, c) = dr::opaque<Float>((ScalarFloat) m(r, c));
@@ -470,6 +576,30 @@ private:
         }
     }
 
+    /// World -> cell space of the majorant walk, composed in double and
+    /// rounded once: the index position of a lookup (relative to the box
+    /// minimum, values at integers), + 0.5 (voxel ijk covers [ijk, ijk + 1)),
+    /// + the box minimum - the walk's base
+    void set_cell_transform(const nanovdb_loader::GridSummary &) {
+        using Matrix4d = dr::Matrix<double, 4>;
+        Matrix4d m = dr::identity<Matrix4d>();
+        if (m_use_grid_transform) {
+            m = m_index_from_world_host;
+            for (int r = 0; r < 3; ++r)
+                m(r, 3) += 0.5;
+        } else {
+            // rel + 0.5 = local * resolution (see lookup())
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 4; ++c)
+                    m(r, c) = (double) m_to_local.matrix(r, c) * (double) m_resolution_host[r];
+        }
+        for (int r = 0; r < 3; ++r)
+            m(r, 3) += double(int64_t(m_index_min_host[r]) - int64_t(m_cell_base_host[r]));
+        for (int r = 0; r < 4; ++r)
+            for (int c = 0; c < 4; ++c)
+                m_cell_from_world(r, c) = dr::opaque<Float>((ScalarFloat) m(r, c));
+    }
+
 private:
     // Backend (JIT variables, opaque per file; plain values on scalars)
     GridBuffer m_grid;            // the grid's 32-bit words
@@ -478,6 +608,8 @@ private:
     Vector3f m_resolution;        // active box extent in voxels, as Float
     Matrix4f m_index_from_world;  // use_grid_transform: world -> index - min
     Float m_max;                  // max(), the clamp of trilinear results
+    nanovdb_drjit::MajorantGrid<UInt32> m_majorants; // per-node bounds (majorant walk)
+    Matrix4f m_cell_from_world;   // world -> the walk's cell space
 
     // Host
     ScalarVector3i m_index_min_host;
@@ -487,13 +619,23 @@ private:
     ScalarFloat m_background_host = 0.f;
     size_t m_grid_bytes = 0;      // the grid's bytes
     size_t m_backend_bytes = 0;   // what the backend holds for it (padded to 64 B)
+    size_t m_majorant_bytes = 0;  // the per-node bounds beside it
+    int32_t m_cell_base_host[3] = { 0, 0, 0 };       // the walk's base (multiple of 4096)
+    dr::Matrix<double, 4> m_index_from_world_host;   // use_grid_transform, in double
     bool m_nearest = false;
     bool m_use_grid_transform = false;
+    bool m_count = false;                        // count_lookups
+    mutable UInt64 m_counters;                   // ... JIT: lookups, walk steps
+    mutable std::atomic<uint64_t> m_scalar_counters[2] = { 0, 0 }; // ... scalar
     nanovdb_loader::InvalidValues m_invalid_values = nanovdb_loader::InvalidValues::Error;
     std::string m_filename, m_grid_name;
 
     MI_TRAVERSE_CB(Base, m_grid, m_reader.root, m_reader.root_table, m_reader.block_min,
-                   m_reader.block_dims, m_index_min, m_resolution, m_index_from_world, m_max)
+                   m_reader.block_dims, m_index_min, m_resolution, m_index_from_world, m_max,
+                   m_majorants.table, m_majorants.leaf_begin, m_majorants.lower_begin,
+                   m_majorants.upper_begin, m_majorants.tile_begin, m_majorants.lower_slot,
+                   m_majorants.upper_slot, m_majorants.tile_slot, m_majorants.background,
+                   m_majorants.clamp, m_majorants.base, m_cell_from_world)
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)

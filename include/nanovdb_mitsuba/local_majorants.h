@@ -1,0 +1,61 @@
+/*
+    nanovdb_mitsuba/local_majorants.h -- what a volume offers a tracking
+    integrator: its majorants along a ray, piece by piece
+
+    Mitsuba's media sample free-flight distances against one global majorant
+    (Medium::sample_interaction, which is not virtual). A volume that
+    implements this interface (nanovdbvolume) can instead hand out a
+    piecewise constant majorant along any ray, from the node structure of
+    its grid (nanovdb_drjit/majorant_walk.h), and an integrator
+    (src/integrators/volpath_local.cpp) tracks against it. The integrator
+    finds the interface by dynamic_cast on the medium's sigma_t volume.
+
+    The walk works in the volume's index space; rays are given in world
+    space and keep their parameter t, so segments are world-space distances
+    along the ray as given. Segment bounds are bounds of eval_1() (the
+    medium multiplies them by its scale).
+*/
+
+#pragma once
+
+#include <mitsuba/core/ray.h>
+#include <mitsuba/render/fwd.h>
+
+#include <nanovdb_drjit/majorant_walk.h>
+
+NAMESPACE_BEGIN(mitsuba)
+
+template <typename Float, typename Spectrum> class LocalMajorants {
+public:
+    MI_IMPORT_CORE_TYPES()
+    using Ray3f = Ray<Point<Float, 3>, Spectrum>;
+    using Walk = nanovdb_drjit::MajorantWalk<Float>;
+
+    /// A ray in the volume's index space (what the walk's steps need)
+    struct WalkRay {
+        Vector3f origin, direction;
+        Float coarse_limit;
+        DRJIT_STRUCT(WalkRay, origin, direction, coarse_limit)
+    };
+
+    virtual ~LocalMajorants() = default;
+
+    /**
+     * The ray in index space. `thin_depth` (per unit of eval_1) sets which
+     * nodes are crossed whole: those whose bound M makes the optical depth
+     * of any chord through them at most thin_depth * M * chord length,
+     * i.e. at most thin_depth * M / (world length of the chord). Pass
+     * tau / scale for a medium of that scale, to cross whole the nodes whose
+     * optical depth is at most tau; 0 walks every leaf.
+     */
+    virtual WalkRay walk_ray(const Ray3f &ray, const Float &thin_depth, Mask active) const = 0;
+
+    /// Starts the walk on [tmin, tmax] of the ray (see walk_ray)
+    virtual Walk walk_begin(const WalkRay &ray, const Float &tmin, const Float &tmax,
+                            Mask active) const = 0;
+
+    /// To the next segment; false where the walk has ended
+    virtual Mask walk_advance(Walk &walk, const WalkRay &ray, Mask active) const = 0;
+};
+
+NAMESPACE_END(mitsuba)

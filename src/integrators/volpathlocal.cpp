@@ -1,0 +1,822 @@
+#include <mitsuba/core/properties.h>
+#include <mitsuba/core/ray.h>
+#include <mitsuba/render/bsdf.h>
+#include <mitsuba/render/emitter.h>
+#include <mitsuba/render/integrator.h>
+#include <mitsuba/render/medium.h>
+#include <mitsuba/render/phase.h>
+#include <mitsuba/render/records.h>
+#include <mitsuba/render/scene.h>
+#include <mitsuba/render/sensor.h>
+#include <mitsuba/render/shape.h>
+
+#include <nanovdb_mitsuba/local_majorants.h>
+
+#include <atomic>
+#include <mutex>
+#include <typeinfo>
+#include <vector>
+
+NAMESPACE_BEGIN(mitsuba)
+
+/**!
+
+.. _integrator-volpathlocal:
+
+Volumetric path tracer with local majorants (:monosp:`volpathlocal`)
+--------------------------------------------------------------------
+
+.. pluginparameters::
+
+ * - max_depth
+   - |int|
+   - Specifies the longest path depth in the generated output image (where
+     -1 corresponds to :math:`\infty`). A value of 1 will only render directly
+     visible light sources. 2 will lead to single-bounce (direct-only)
+     illumination, and so on. (Default: -1)
+
+ * - rr_depth
+   - |int|
+   - Specifies the minimum path depth, after which the implementation will
+     start to use the *russian roulette* path termination criterion.
+     (Default: 5)
+
+ * - hide_emitters
+   - |bool|
+   - Hide directly visible emitters. (Default: no, i.e. |false|)
+
+ * - coarse_optical_depth
+   - |float|
+   - Nodes of a NanoVDB tree (lower and upper internal nodes) whose majorant
+     gives at most this optical depth along any chord through them are
+     crossed as one segment with that majorant instead of node by node: a
+     few null collisions there cost less than the steps of the walk.
+     ``0`` walks every leaf. (Default: 2)
+
+A drop-in replacement for :ref:`volpath <integrator-volpath>` that renders
+``heterogeneous`` media whose ``sigma_t`` is a ``nanovdbvolume`` several
+times faster. The stock medium samples free-flight distances against one
+global majorant (``scale * max()``), so every null collision costs a lookup
+wherever the medium is thin or empty. Here a ray is walked through the
+NanoVDB tree node by node (leaf, tile, thin internal node), each with its
+own majorant computed at load time, and:
+
+- free-flight distances of camera and scattered paths are sampled by delta
+  tracking against that piecewise constant majorant, up to the nearest
+  surface;
+- shadow rays estimate transmittance by ratio tracking against it.
+
+Empty space costs one step per node and no lookup. Every other medium
+(homogeneous, ``gridvolume``-based, ...) takes the same code path as in
+``volpath``, through the medium's own ``sample_interaction``, so every scene
+that ``volpath`` renders renders here, with the same expected value: surfaces
+inside media, media inside dielectrics, nested media, emitter sampling with
+multiple importance sampling, RGB, spectral, monochrome and polarized
+variants.
+
+The estimators (for a tracked medium, with majorant :math:`\bar\mu(t)` =
+``scale`` times the node's bound, extinction :math:`\mu_t`, scattering
+:math:`\mu_s`, null :math:`\mu_n = \bar\mu - \mu_t`, per channel):
+
+- delta tracking: tentative collisions are sampled with density
+  :math:`\bar\mu(t) \exp(-\int \bar\mu)`; each is real with probability
+  :math:`P_r = \mathrm{mean}(\mu_t) / \bar\mu`, weight
+  :math:`\mu_s / \mathrm{mean}(\mu_t)`, and null otherwise, weight
+  :math:`\mu_n / \mathrm{mean}(\mu_n)` (1 for a grey extinction);
+- ratio tracking: the transmittance estimate is
+  :math:`\prod \mu_n / \bar\mu` over the tentative collisions.
+
+.. tabs::
+    .. code-tab:: xml
+
+        <integrator type="volpathlocal">
+            <integer name="max_depth" value="64"/>
+        </integrator>
+
+    .. code-tab:: python
+
+        'type': 'volpathlocal',
+        'max_depth': 64
+
+*/
+template <typename Float, typename Spectrum>
+class VolumetricPathLocalMajorants final : public MonteCarloIntegrator<Float, Spectrum> {
+public:
+    MI_IMPORT_BASE(MonteCarloIntegrator, m_max_depth, m_rr_depth, m_hide_emitters)
+    MI_IMPORT_TYPES(Scene, Sampler, Sensor, Emitter, EmitterPtr, BSDF, BSDFPtr, Medium,
+                    MediumPtr, PhaseFunctionContext)
+    using Majorants = LocalMajorants<Float, Spectrum>;
+    using Walk = typename Majorants::Walk;
+    using WalkRay = typename Majorants::WalkRay;
+
+    VolumetricPathLocalMajorants(const Properties &props) : Base(props) {
+        m_coarse_depth = props.get<ScalarFloat>("coarse_optical_depth", 2.f);
+        if (!(m_coarse_depth >= 0.f) || !std::isfinite(m_coarse_depth))
+            Throw("volpathlocal: coarse_optical_depth must be a finite value >= 0, got %f",
+                  m_coarse_depth);
+    }
+
+    TensorXf render(Scene *scene, Sensor *sensor, UInt32 seed = 0, uint32_t spp = 0,
+                    bool develop = true, bool evaluate = true) override {
+        prepare(scene, true);
+        return Base::render(scene, sensor, seed, spp, develop, evaluate);
+    }
+
+    // =====================================================================
+    //  The path: volpath's, with tracked media sampled through the walk
+    // =====================================================================
+
+    std::pair<Spectrum, Mask> sample(const Scene *scene, Sampler *sampler,
+                                     const RayDifferential3f &ray_,
+                                     const Medium *initial_medium, Float * /* aovs */,
+                                     Mask active) const override {
+        MI_MASKED_FUNCTION(ProfilerPhase::SamplingIntegratorSample, active);
+        prepare(scene, false);
+
+        // With a visible environment emitter every ray is valid; otherwise a
+        // ray is valid once it scatters
+        Mask valid_ray = !m_hide_emitters && (scene->environment() != nullptr);
+
+        UInt32 channel = 0;
+        if constexpr (is_rgb_v<Spectrum>) {
+            uint32_t n_channels = (uint32_t) dr::size_v<Spectrum>;
+            channel = (UInt32) dr::minimum(sampler->next_1d(active) * n_channels, n_channels - 1);
+        }
+
+        struct PathState {
+            Mask active;
+            UInt32 depth;
+            Ray3f ray;
+            Spectrum throughput, result;
+            SurfaceInteraction3f si;
+            MediumInteraction3f mei;
+            MediumPtr medium;
+            Float eta;                        ///< radiance scaling by refraction
+            Interaction3f last_scatter_event;
+            Float last_scatter_direction_pdf;
+            Mask needs_intersection, specular_chain, valid_ray;
+            Sampler *sampler;
+            DRJIT_STRUCT(PathState, active, depth, ray, throughput, result, si, mei, medium, eta,
+                         last_scatter_event, last_scatter_direction_pdf, needs_intersection,
+                         specular_chain, valid_ray, sampler)
+        } ps = { active,
+                 UInt32(0),
+                 Ray3f(ray_),
+                 Spectrum(1.f),
+                 Spectrum(0.f),
+                 dr::zeros<SurfaceInteraction3f>(),
+                 dr::zeros<MediumInteraction3f>(),
+                 MediumPtr(initial_medium),
+                 Float(1.f),
+                 dr::zeros<Interaction3f>(),
+                 Float(1.f),
+                 Mask(true),
+                 Mask(active && !m_hide_emitters),
+                 valid_ray,
+                 sampler };
+
+        dr::tie(ps) = dr::while_loop(
+            dr::make_tuple(ps), [](const PathState &ps) { return ps.active; },
+            [this, scene, channel](PathState &ps) { path_step(scene, channel, ps); },
+            "volpathlocal: path");
+        return { ps.result, ps.valid_ray };
+    }
+
+    std::string to_string() const override {
+        return tfm::format("VolumetricPathLocalMajorants[\n"
+                           "  max_depth = %i,\n"
+                           "  rr_depth = %i,\n"
+                           "  coarse_optical_depth = %f,\n"
+                           "  tracked media = %zu\n"
+                           "]",
+                           m_max_depth, m_rr_depth, m_coarse_depth, m_tracked.size());
+    }
+
+    MI_DECLARE_CLASS(VolumetricPathLocalMajorants)
+
+private:
+    /// A heterogeneous medium whose sigma_t offers local majorants
+    struct Tracked {
+        const Medium *medium;
+        const Majorants *volume;
+        ScalarFloat scale;
+    };
+
+    /// Reads a medium's "sigma_t" and "scale" (what heterogeneous exposes)
+    struct FindParameters final : public TraversalCallback {
+        Object *sigma_t = nullptr;
+        ScalarFloat scale = 1.f;
+        bool has_scale = false;
+        void put_value(std::string_view name, void *value, uint32_t,
+                       const std::type_info &type) override {
+            if (name == "scale" && type == typeid(ScalarFloat)) {
+                scale = *static_cast<const ScalarFloat *>(value);
+                has_scale = true;
+            }
+        }
+        void put_object(std::string_view name, Object *value, uint32_t) override {
+            if (name == "sigma_t")
+                sigma_t = value;
+        }
+    };
+
+    /// Finds the media to track: every `heterogeneous` medium of the scene
+    /// (on shapes, sensors, emitters) whose sigma_t offers local majorants.
+    /// Done on every render (a scale may have changed), and on the first
+    /// sample() for a scene that render() did not see.
+    void prepare(const Scene *scene, bool force) const {
+        if (!force && m_prepared_for.load(std::memory_order_acquire) == scene)
+            return; // the common case: no lock per sample() call
+        std::lock_guard<std::mutex> guard(m_prepare_mutex);
+        if (!force && m_prepared_for.load(std::memory_order_relaxed) == scene)
+            return;
+        std::vector<const Medium *> media;
+        auto add = [&](const Medium *m) {
+            if (m && std::find(media.begin(), media.end(), m) == media.end())
+                media.push_back(m);
+        };
+        for (const auto &shape : scene->shapes()) {
+            add(shape->interior_medium());
+            add(shape->exterior_medium());
+        }
+        for (const auto &sensor : scene->sensors())
+            add(sensor->medium());
+        for (const auto &emitter : scene->emitters())
+            add(emitter->medium());
+        std::vector<Tracked> tracked;
+        for (const Medium *m : media) {
+            if (m->class_name() != std::string_view("HeterogeneousMedium"))
+                continue;
+            FindParameters p;
+            const_cast<Medium *>(m)->traverse(&p);
+            const Majorants *v = p.sigma_t ? dynamic_cast<const Majorants *>(p.sigma_t) : nullptr;
+            if (v && p.has_scale)
+                tracked.push_back({ m, v, p.scale });
+        }
+        Log(Debug, "volpathlocal: %zu of %zu media tracked through local majorants",
+            tracked.size(), media.size());
+        m_tracked = std::move(tracked);
+        m_prepared_for.store(scene, std::memory_order_release);
+    }
+
+    /// One iteration of the path loop: a free flight (in a medium) or a
+    /// surface interaction, as volpath does; tracked media resolve their
+    /// null collisions inside track_collision()
+    template <typename PathState>
+    void path_step(const Scene *scene, const UInt32 &channel, PathState &ps) const {
+        Mask &active = ps.active;
+        Sampler *sampler = ps.sampler;
+        Ray3f &ray = ps.ray;
+        SurfaceInteraction3f &si = ps.si;
+        MediumInteraction3f &mei = ps.mei;
+
+        // ----------------- Russian roulette and depth --------------------
+        active &= dr::any(unpolarized_spectrum(ps.throughput) != 0.f);
+        Float q = dr::minimum(dr::max(unpolarized_spectrum(ps.throughput)) * dr::square(ps.eta),
+                              .95f);
+        Mask perform_rr = ps.depth > (uint32_t) m_rr_depth;
+        active &= sampler->next_1d(active) < q || !perform_rr;
+        dr::masked(ps.throughput, perform_rr) *= dr::rcp(dr::detach(q));
+        active &= ps.depth < (uint32_t) m_max_depth;
+        if (dr::none_or<false>(active))
+            return;
+
+        // ----------------------- Free flight ------------------------------
+        Mask active_medium = active && (ps.medium != nullptr);
+        Mask active_surface = active && !active_medium;
+        Mask act_null_scatter = false, act_medium_scatter = false, escaped_medium = false;
+        Mask fallback_spectral = false, fallback_grey = false;
+
+        if (dr::any_or<true>(active_medium)) {
+            // The nearest surface first: tracking stops there
+            Mask intersect = ps.needs_intersection && active_medium;
+            if (dr::any_or<true>(intersect))
+                dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
+            ps.needs_intersection &= !active_medium;
+
+            Mask tracked = false;
+            for (const Tracked &k : m_tracked) {
+                Mask in_k = active_medium && (ps.medium == MediumPtr(k.medium));
+                if (dr::none_or<false>(in_k))
+                    continue; // (scalar variants: not this medium)
+                tracked |= in_k;
+                auto [real, mei_k, weight] = track_collision(k, ray, si.t, sampler, in_k);
+                dr::masked(mei, in_k) = mei_k;
+                dr::masked(ps.throughput, real) *= weight;
+                act_medium_scatter |= real;
+                escaped_medium |= in_k && !real;
+            }
+
+            // Every other medium: one tentative collision of its own, as volpath
+            Mask other = active_medium && !tracked;
+            if (dr::any_or<true>(other)) {
+                MediumPtr medium = ps.medium;
+                fallback_spectral = other && medium->has_spectral_extinction();
+                fallback_grey = other && !fallback_spectral;
+                MediumInteraction3f mei_o =
+                    medium->sample_interaction(ray, sampler->next_1d(other), channel, other);
+                dr::masked(mei_o.t, other && (si.t < mei_o.t)) = dr::Infinity<Float>;
+                if (dr::any_or<true>(fallback_spectral)) {
+                    auto [tr, free_flight_pdf] =
+                        medium->transmittance_eval_pdf(mei_o, si, fallback_spectral);
+                    Float tr_pdf = index_spectrum(free_flight_pdf, channel);
+                    dr::masked(ps.throughput, fallback_spectral) *=
+                        dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
+                }
+                escaped_medium |= other && !mei_o.is_valid();
+                Mask collided = other && mei_o.is_valid();
+                Float null_prob = dr::mean(mei_o.sigma_n / mei_o.combined_extinction);
+                Mask null_scatter = collided && sampler->next_1d(collided) < null_prob;
+                act_null_scatter |= null_scatter;
+                act_medium_scatter |= collided && !null_scatter;
+                if (dr::any_or<true>(fallback_spectral && null_scatter))
+                    dr::masked(ps.throughput, fallback_spectral && null_scatter) *=
+                        mei_o.sigma_n / null_prob;
+                Mask real_spectral = fallback_spectral && collided && !null_scatter,
+                     real_grey = fallback_grey && collided && !null_scatter;
+                dr::masked(ps.throughput, real_spectral) *=
+                    mei_o.sigma_s / dr::mean(mei_o.sigma_t / mei_o.combined_extinction);
+                dr::masked(ps.throughput, real_grey) *= mei_o.sigma_s / mei_o.sigma_t;
+                dr::masked(mei, other) = mei_o;
+            }
+            dr::masked(ps.depth, act_medium_scatter) += 1;
+            dr::masked(ps.last_scatter_event, act_medium_scatter) = mei;
+        }
+
+        // No lighting past the maximum depth
+        active &= ps.depth < (uint32_t) m_max_depth;
+        act_medium_scatter &= active;
+
+        if (dr::any_or<true>(act_null_scatter)) {
+            dr::masked(ray.o, act_null_scatter) = mei.p;
+            dr::masked(si.t, act_null_scatter) = si.t - mei.t;
+        }
+
+        // ----------------------- Medium scattering ------------------------
+        if (dr::any_or<true>(act_medium_scatter)) {
+            PhaseFunctionContext phase_ctx(sampler);
+            auto phase = mei.medium->phase_function();
+
+            Mask sample_emitters = mei.medium->use_emitter_sampling();
+            ps.valid_ray |= act_medium_scatter;
+            ps.specular_chain &= !act_medium_scatter;
+            ps.specular_chain |= act_medium_scatter && !sample_emitters;
+
+            Mask active_e = act_medium_scatter && sample_emitters;
+            if (dr::any_or<true>(active_e)) {
+                auto [emitted, ds] =
+                    sample_emitter(mei, scene, sampler, ps.medium, channel, active_e);
+                auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, ds.d, active_e);
+                dr::masked(ps.result, active_e) +=
+                    ps.throughput * phase_val * emitted *
+                    mis_weight(ds.pdf, dr::select(ds.delta, 0.f, phase_pdf));
+            }
+
+            dr::masked(phase, !act_medium_scatter) = nullptr;
+            auto [wo, phase_weight, phase_pdf] =
+                phase->sample(phase_ctx, mei, sampler->next_1d(act_medium_scatter),
+                              sampler->next_2d(act_medium_scatter), act_medium_scatter);
+            act_medium_scatter &= phase_pdf > 0.f;
+            dr::masked(ray, act_medium_scatter) = mei.spawn_ray(wo);
+            ps.needs_intersection |= act_medium_scatter;
+            dr::masked(ps.last_scatter_direction_pdf, act_medium_scatter) = phase_pdf;
+            dr::masked(ps.throughput, act_medium_scatter) *= phase_weight;
+        }
+
+        // ---------------------- Surface interactions ----------------------
+        active_surface |= escaped_medium;
+        Mask intersect = active_surface && ps.needs_intersection;
+        if (dr::any_or<true>(intersect))
+            dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
+
+        if (dr::any_or<true>(active_surface)) {
+            // Hidden area emitters on the camera ray: skip them
+            if (m_hide_emitters && dr::any_or<true>(ps.depth == 0u)) {
+                Mask skip = si.is_valid() && (si.shape->emitter() != nullptr) &&
+                            (ps.depth == 0u) && intersect;
+                if (dr::any_or<true>(skip)) {
+                    Ray3f skip_ray = si.spawn_ray(ray.d);
+                    PreliminaryIntersection3f pi =
+                        Base::skip_area_emitters(scene, skip_ray, true, skip);
+                    dr::masked(si, skip) =
+                        pi.compute_surface_interaction(skip_ray, +RayFlags::All, skip);
+                }
+            }
+
+            // Emitters hit: direct, or weighted against emitter sampling
+            Mask count_direct = (active_surface && ps.depth == 0u) || ps.specular_chain;
+            EmitterPtr emitter = si.emitter(scene);
+            Mask active_e = active_surface && (emitter != nullptr) &&
+                            !((ps.depth == 0u) && m_hide_emitters);
+            if (dr::any_or<true>(active_e)) {
+                Float emitter_pdf = 1.f;
+                if (dr::any_or<true>(active_e && !count_direct)) {
+                    DirectionSample3f ds(scene, si, ps.last_scatter_event);
+                    emitter_pdf =
+                        scene->pdf_emitter_direction(ps.last_scatter_event, ds, active_e);
+                }
+                Spectrum emitted = emitter->eval(si, active_e);
+                dr::masked(ps.result, active_e) += dr::select(
+                    count_direct, ps.throughput * emitted,
+                    ps.throughput * mis_weight(ps.last_scatter_direction_pdf, emitter_pdf) *
+                        emitted);
+            }
+        }
+        active_surface &= si.is_valid();
+        if (dr::any_or<true>(active_surface)) {
+            BSDFContext ctx;
+            BSDFPtr bsdf = si.bsdf(ray);
+            Mask active_e = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) &&
+                            (ps.depth + 1 < (uint32_t) m_max_depth);
+            if (dr::any_or<true>(active_e)) {
+                auto [emitted, ds] =
+                    sample_emitter(si, scene, sampler, ps.medium, channel, active_e);
+                Vector3f wo = si.to_local(ds.d);
+                Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e);
+                bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi);
+                Float bsdf_pdf = bsdf->pdf(ctx, si, wo, active_e);
+                dr::masked(ps.result, active_e) +=
+                    ps.throughput * bsdf_val *
+                    mis_weight(ds.pdf, dr::select(ds.delta, 0.f, bsdf_pdf)) * emitted;
+            }
+
+            auto [bs, bsdf_val] = bsdf->sample(ctx, si, sampler->next_1d(active_surface),
+                                               sampler->next_2d(active_surface), active_surface);
+            bsdf_val = si.to_world_mueller(bsdf_val, -bs.wo, si.wi);
+            dr::masked(ps.throughput, active_surface) *= bsdf_val;
+            dr::masked(ps.eta, active_surface) *= bs.eta;
+            dr::masked(ray, active_surface) = si.spawn_ray(si.to_world(bs.wo));
+            ps.needs_intersection |= active_surface;
+
+            Mask non_null_bsdf = active_surface && !has_flag(bs.sampled_type, BSDFFlags::Null);
+            dr::masked(ps.depth, non_null_bsdf) += 1;
+            dr::masked(ps.last_scatter_event, non_null_bsdf) = si;
+            dr::masked(ps.last_scatter_direction_pdf, non_null_bsdf) = bs.pdf;
+
+            ps.valid_ray |= non_null_bsdf;
+            ps.specular_chain |= non_null_bsdf && has_flag(bs.sampled_type, BSDFFlags::Delta);
+            ps.specular_chain &= !(active_surface && has_flag(bs.sampled_type, BSDFFlags::Smooth));
+            act_null_scatter |= active_surface && has_flag(bs.sampled_type, BSDFFlags::Null);
+            Mask has_medium_trans = active_surface && si.is_medium_transition();
+            dr::masked(ps.medium, has_medium_trans) = si.target_medium(ray.d);
+        }
+        active &= active_surface || active_medium;
+    }
+
+    // =====================================================================
+    //  Emitter sampling: volpath's shadow ray, tracked media by ratio tracking
+    // =====================================================================
+
+    template <typename Interaction>
+    std::tuple<Spectrum, DirectionSample3f>
+    sample_emitter(const Interaction &ref, const Scene *scene, Sampler *sampler,
+                   MediumPtr medium, const UInt32 &channel, Mask active) const {
+        auto [ds, emitter_val] =
+            scene->sample_emitter_direction(ref, sampler->next_2d(active), false, active);
+        dr::masked(emitter_val, ds.pdf == 0.f) = 0.f;
+        active &= ds.pdf != 0.f;
+        if (dr::none_or<false>(active))
+            return { emitter_val, ds };
+
+        Ray3f ray = ref.spawn_ray_to(ds.p);
+        Float max_dist = ray.maxt;
+        // Leaving the current medium if ref is on its boundary
+        if constexpr (std::is_convertible_v<Interaction, SurfaceInteraction3f>)
+            dr::masked(medium, ref.is_medium_transition()) = ref.target_medium(ray.d);
+
+        struct ShadowState {
+            Mask active;
+            Ray3f ray;
+            Float total_dist;
+            Mask needs_intersection;
+            MediumPtr medium;
+            SurfaceInteraction3f si;
+            Spectrum transmittance;
+            Sampler *sampler;
+            DRJIT_STRUCT(ShadowState, active, ray, total_dist, needs_intersection, medium, si,
+                         transmittance, sampler)
+        } ss = { active, ray, Float(0.f), Mask(true), medium,
+                 dr::zeros<SurfaceInteraction3f>(), Spectrum(1.f), sampler };
+
+        dr::tie(ss) = dr::while_loop(
+            dr::make_tuple(ss), [](const ShadowState &ss) { return dr::detach(ss.active); },
+            [this, scene, channel, max_dist, ds = ds](ShadowState &ss) {
+                shadow_step(scene, channel, max_dist, ds.dist, ss);
+            },
+            "volpathlocal: shadow ray");
+        return { ss.transmittance * emitter_val, ds };
+    }
+
+    template <typename ShadowState>
+    void shadow_step(const Scene *scene, const UInt32 &channel, const Float &max_dist,
+                     const Float &ds_dist, ShadowState &ss) const {
+        Mask &active = ss.active;
+        Ray3f &ray = ss.ray;
+        SurfaceInteraction3f &si = ss.si;
+        Sampler *sampler = ss.sampler;
+
+        Float remaining = max_dist - ss.total_dist;
+        ray.maxt = remaining;
+        active &= remaining > 0.f;
+        if (dr::none_or<false>(active))
+            return;
+
+        Mask escaped_medium = false;
+        Mask active_medium = active && (ss.medium != nullptr);
+        Mask active_surface = active && !active_medium;
+
+        if (dr::any_or<true>(active_medium)) {
+            Mask intersect = ss.needs_intersection && active_medium;
+            if (dr::any_or<true>(intersect))
+                dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
+            ss.needs_intersection &= !active_medium;
+
+            // Tracked media: the whole way to the surface (or the emitter)
+            Mask tracked = false;
+            for (const Tracked &k : m_tracked) {
+                Mask in_k = active_medium && (ss.medium == MediumPtr(k.medium));
+                if (dr::none_or<false>(in_k))
+                    continue;
+                tracked |= in_k;
+                UnpolarizedSpectrum tr = track_transmittance(
+                    k, ray, dr::minimum(si.t, remaining), sampler, in_k);
+                dr::masked(ss.transmittance, in_k) *= tr;
+            }
+            escaped_medium |= tracked;
+
+            // Every other medium: a tentative collision, as volpath
+            Mask other = active_medium && !tracked;
+            active_medium = false;
+            if (dr::any_or<true>(other)) {
+                MediumPtr medium = ss.medium;
+                MediumInteraction3f mei =
+                    medium->sample_interaction(ray, sampler->next_1d(other), channel, other);
+                dr::masked(mei.t, other && (si.t < mei.t)) = dr::Infinity<Float>;
+                Mask is_spectral = medium->has_spectral_extinction() && other;
+                Mask not_spectral = !is_spectral && other;
+                if (dr::any_or<true>(is_spectral)) {
+                    Float t = dr::minimum(remaining, dr::minimum(mei.t, si.t)) - mei.mint;
+                    UnpolarizedSpectrum tr = dr::exp(-t * mei.combined_extinction);
+                    UnpolarizedSpectrum pdf = dr::select(si.t < mei.t || mei.t > remaining, tr,
+                                                         tr * mei.combined_extinction);
+                    Float tr_pdf = index_spectrum(pdf, channel);
+                    dr::masked(ss.transmittance, is_spectral) *=
+                        dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
+                }
+                // Past the emitter
+                dr::masked(ss.total_dist, other && (mei.t > remaining) && mei.is_valid()) =
+                    ds_dist;
+                dr::masked(mei.t, other && (mei.t > remaining)) = dr::Infinity<Float>;
+
+                escaped_medium |= other && !mei.is_valid();
+                active_medium = other && mei.is_valid();
+                is_spectral &= active_medium;
+                not_spectral &= active_medium;
+                dr::masked(ss.total_dist, active_medium) += mei.t;
+                if (dr::any_or<true>(active_medium)) {
+                    dr::masked(ray.o, active_medium) = mei.p;
+                    dr::masked(si.t, active_medium) = si.t - mei.t;
+                    dr::masked(ss.transmittance, is_spectral) *= mei.sigma_n;
+                    dr::masked(ss.transmittance, not_spectral) *=
+                        mei.sigma_n / mei.combined_extinction;
+                }
+            }
+        }
+
+        // Surfaces: null transmission, medium transitions
+        Mask intersect = active_surface && ss.needs_intersection;
+        if (dr::any_or<true>(intersect))
+            dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
+        ss.needs_intersection &= !intersect;
+        active_surface |= escaped_medium;
+        dr::masked(ss.total_dist, active_surface) += si.t;
+
+        active_surface &= si.is_valid() && active && !active_medium;
+        if (dr::any_or<true>(active_surface)) {
+            auto bsdf = si.bsdf(ray);
+            Spectrum bsdf_val = bsdf->eval_null_transmission(si, active_surface);
+            bsdf_val = si.to_world_mueller(bsdf_val, si.wi, si.wi);
+            dr::masked(ss.transmittance, active_surface) *= bsdf_val;
+        }
+
+        dr::masked(ray, active_surface) = si.spawn_ray(ray.d);
+        ray.maxt = remaining;
+        ss.needs_intersection |= active_surface;
+
+        active &= (active_medium || active_surface) &&
+                  dr::any(unpolarized_spectrum(ss.transmittance) != 0.f);
+        Mask has_medium_trans = active_surface && si.is_medium_transition();
+        if (dr::any_or<true>(has_medium_trans))
+            dr::masked(ss.medium, has_medium_trans) = si.target_medium(ray.d);
+    }
+
+    // =====================================================================
+    //  Tracking through a tracked medium, segment by segment of the walk
+    // =====================================================================
+
+    /// The parameter range of `ray` inside the medium's box, up to tmax
+    std::pair<Float, Float> medium_range(const Tracked &k, const Ray3f &ray, const Float &tmax,
+                                         Mask &active) const {
+        auto [hit, mint, maxt] = k.medium->intersect_aabb(ray);
+        mint = dr::maximum(mint, 0.f);
+        maxt = dr::minimum(maxt, tmax);
+        active &= hit && (mint < maxt);
+        return { mint, maxt };
+    }
+
+    /// A medium interaction at distance t along the ray, for evaluating the
+    /// medium there and scattering from it
+    MediumInteraction3f interaction_at(const Tracked &k, const Ray3f &ray, const Float &t,
+                                       const Float &mint) const {
+        MediumInteraction3f mei = dr::zeros<MediumInteraction3f>();
+        mei.wi = -ray.d;
+        mei.sh_frame = Frame3f(mei.wi);
+        mei.time = ray.time;
+        mei.wavelengths = ray.wavelengths;
+        mei.t = t;
+        mei.p = ray(t);
+        mei.medium = MediumPtr(k.medium);
+        mei.mint = mint;
+        return mei;
+    }
+
+    struct Collision {
+        Mask real;                    ///< a real collision at mei (else none before tmax)
+        MediumInteraction3f mei;
+        UnpolarizedSpectrum weight;   ///< the path throughput's factor
+    };
+
+    /**
+     * Delta tracking along `ray` through tracked medium k up to tmax (the
+     * nearest surface). Tentative collisions come at rate mu(t) = scale x
+     * the walk's bound, by carrying an exponential optical depth `tau`
+     * across segments; each is real with probability mean(mu_t) / mu.
+     * Returns the first real collision with the weight
+     * prod(mu_n / mean(mu_n)) over the null ones x mu_s / mean(mu_t).
+     */
+    Collision track_collision(const Tracked &k, const Ray3f &ray, const Float &tmax,
+                              Sampler *sampler, Mask active) const {
+        // (not MI_MASKED_FUNCTION: on scalar variants it would make the call active)
+        ScopedPhase scope_phase(ProfilerPhase::MediumSample);
+        auto [mint, maxt] = medium_range(k, ray, tmax, active);
+        const ScalarFloat scale = k.scale;
+        WalkRay wr = k.volume->walk_ray(ray, Float(scale > 0.f ? m_coarse_depth / scale : 0.f),
+                                        active);
+
+        struct TrackState {
+            Mask active;
+            Walk walk;
+            Float t, tau;
+            UnpolarizedSpectrum weight, sigma_s, sigma_t;
+            Float majorant;
+            Mask real;
+            Sampler *sampler;
+            DRJIT_STRUCT(TrackState, active, walk, t, tau, weight, sigma_s, sigma_t, majorant,
+                         real, sampler)
+        } ts = { active,
+                 k.volume->walk_begin(wr, mint, maxt, active),
+                 mint,
+                 -dr::log(1.f - sampler->next_1d(active)),
+                 UnpolarizedSpectrum(1.f),
+                 dr::zeros<UnpolarizedSpectrum>(),
+                 dr::zeros<UnpolarizedSpectrum>(),
+                 Float(0.f),
+                 Mask(false),
+                 sampler };
+
+        dr::tie(ts) = dr::while_loop(
+            dr::make_tuple(ts), [](const TrackState &ts) { return ts.active; },
+            [this, k, ray, wr, mint, scale](TrackState &ts) {
+                Float mu = scale * ts.walk.majorant,
+                      end = ts.walk.segment_end(),
+                      t = dr::maximum(ts.t, ts.walk.hdda.tmin),
+                      depth = mu * (end - t);
+                Mask hit = ts.active && (ts.tau < depth), miss = ts.active && !hit;
+
+                // A tentative collision in this segment: real or null?
+                Float tc = t + ts.tau / mu;
+                Float xi = ts.sampler->next_1d(hit), u = ts.sampler->next_1d(hit);
+                MediumInteraction3f mei = interaction_at(k, ray, tc, mint);
+                auto [sigma_s, sigma_n, sigma_t] =
+                    k.medium->get_scattering_coefficients(mei, hit);
+                DRJIT_MARK_USED(sigma_n);
+                Float p_real = dr::mean(sigma_t) / mu;
+                Mask real = hit && (xi < p_real), null = hit && !real;
+                UnpolarizedSpectrum mu_n = mu - sigma_t;
+                dr::masked(ts.weight, null) *= mu_n / (mu * (1.f - p_real));
+                dr::masked(ts.sigma_s, real) = sigma_s;
+                dr::masked(ts.sigma_t, real) = sigma_t;
+                dr::masked(ts.majorant, real) = mu;
+                ts.t = dr::select(hit, tc, t);
+                dr::masked(ts.tau, null) = -dr::log(1.f - u);
+                ts.real |= real;
+                ts.active &= !real;
+
+                // No collision in this segment: on to the next
+                dr::masked(ts.tau, miss) = ts.tau - depth;
+                dr::masked(ts.t, miss) = end;
+                Mask more = k.volume->walk_advance(ts.walk, wr, miss);
+                ts.active &= !(miss && !more);
+            },
+            "volpathlocal: delta tracking");
+
+        Collision c;
+        c.real = ts.real;
+        c.mei = interaction_at(k, ray, dr::select(ts.real, ts.t, dr::Infinity<Float>), mint);
+        c.mei.p = ray(ts.t);
+        c.mei.sigma_s = ts.sigma_s;
+        c.mei.sigma_t = ts.sigma_t;
+        c.mei.sigma_n = ts.majorant - ts.sigma_t;
+        c.mei.combined_extinction = ts.majorant;
+        c.weight = ts.weight * ts.sigma_s / dr::mean(ts.sigma_t);
+        return c;
+    }
+
+    /**
+     * Ratio tracking along `ray` through tracked medium k up to tmax: the
+     * transmittance estimate prod(mu_n / mu) over tentative collisions
+     * sampled as in track_collision().
+     */
+    UnpolarizedSpectrum track_transmittance(const Tracked &k, const Ray3f &ray,
+                                            const Float &tmax, Sampler *sampler,
+                                            Mask active) const {
+        ScopedPhase scope_phase(ProfilerPhase::MediumEvaluate);
+        auto [mint, maxt] = medium_range(k, ray, tmax, active);
+        const ScalarFloat scale = k.scale;
+        WalkRay wr = k.volume->walk_ray(ray, Float(scale > 0.f ? m_coarse_depth / scale : 0.f),
+                                        active);
+
+        struct RatioState {
+            Mask active;
+            Walk walk;
+            Float t, tau;
+            UnpolarizedSpectrum transmittance;
+            Sampler *sampler;
+            DRJIT_STRUCT(RatioState, active, walk, t, tau, transmittance, sampler)
+        } rs = { active,
+                 k.volume->walk_begin(wr, mint, maxt, active),
+                 mint,
+                 -dr::log(1.f - sampler->next_1d(active)),
+                 UnpolarizedSpectrum(1.f),
+                 sampler };
+
+        dr::tie(rs) = dr::while_loop(
+            dr::make_tuple(rs), [](const RatioState &rs) { return rs.active; },
+            [this, k, ray, wr, mint, scale](RatioState &rs) {
+                Float mu = scale * rs.walk.majorant,
+                      end = rs.walk.segment_end(),
+                      t = dr::maximum(rs.t, rs.walk.hdda.tmin),
+                      depth = mu * (end - t);
+                Mask hit = rs.active && (rs.tau < depth), miss = rs.active && !hit;
+
+                Float tc = t + rs.tau / mu;
+                Float u = rs.sampler->next_1d(hit);
+                MediumInteraction3f mei = interaction_at(k, ray, tc, mint);
+                auto [sigma_s, sigma_n, sigma_t] =
+                    k.medium->get_scattering_coefficients(mei, hit);
+                DRJIT_MARK_USED(sigma_s);
+                DRJIT_MARK_USED(sigma_n);
+                dr::masked(rs.transmittance, hit) *= (mu - sigma_t) / mu;
+                rs.t = dr::select(hit, tc, t);
+                dr::masked(rs.tau, hit) = -dr::log(1.f - u);
+                rs.active &= !(hit && dr::all(rs.transmittance == 0.f));
+
+                dr::masked(rs.tau, miss) = rs.tau - depth;
+                dr::masked(rs.t, miss) = end;
+                Mask more = k.volume->walk_advance(rs.walk, wr, miss);
+                rs.active &= !(miss && !more);
+            },
+            "volpathlocal: ratio tracking");
+        return rs.transmittance;
+    }
+
+    // =====================================================================
+    //  Helpers
+    // =====================================================================
+
+    MI_INLINE Float index_spectrum(const UnpolarizedSpectrum &spec, const UInt32 &idx) const {
+        Float m = spec[0];
+        if constexpr (is_rgb_v<Spectrum>) {
+            dr::masked(m, idx == 1u) = spec[1];
+            dr::masked(m, idx == 2u) = spec[2];
+        } else {
+            DRJIT_MARK_USED(idx);
+        }
+        return m;
+    }
+
+    Float mis_weight(Float pdf_a, Float pdf_b) const {
+        pdf_a *= pdf_a;
+        pdf_b *= pdf_b;
+        Float w = pdf_a / (pdf_a + pdf_b);
+        return dr::select(dr::isfinite(w), w, 0.f);
+    }
+
+    ScalarFloat m_coarse_depth;
+    mutable std::vector<Tracked> m_tracked;
+    mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
+    mutable std::mutex m_prepare_mutex;
+};
+
+MI_EXPORT_PLUGIN(VolumetricPathLocalMajorants)
+NAMESPACE_END(mitsuba)
