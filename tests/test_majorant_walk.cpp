@@ -188,8 +188,8 @@ struct Reference {
 };
 
 /// The bound of the finest cell holding absolute voxel ijk, by hand: NanoVDB's
-/// node structs find the node, the loader's table gives its bound (nodes with
-/// M <= 0 are crossed whole, as the walk does with coarse_limit = 0)
+/// node structs find the node, the loader's table gives its bound (nodes and
+/// bricks with M <= 0 are crossed whole, as the walk does with coarse_limit = 0)
 float expected_bound(const WalkGrid &g, const nanovdb::Coord &ijk) {
     const auto &tree = g.handle.grid<float>()->tree();
     const auto &root = tree.root();
@@ -211,12 +211,16 @@ float expected_bound(const WalkGrid &g, const nanovdb::Coord &ijk) {
         if (!up->data()->isChild(nu))
             return clamp0(std::max(up->data()->getValue(nu), m[L.upper_slot + 2 * ui + 1]));
         const auto *lo = up->data()->getChild(nu);
-        const uint32_t li = uint32_t(lo - tree.getFirstNode<1>());
-        if (!(m[L.lower_slot + 2 * li] > 0.f))
+        const uint32_t slot = L.lower_slot + ndr::LOWER_SLOTS * uint32_t(lo - tree.getFirstNode<1>());
+        if (!(m[slot] > 0.f))
+            return 0.f;
+        const float brick = m[slot + 2 + ndr::brick_of(uint32_t(ijk[0]), uint32_t(ijk[1]),
+                                                        uint32_t(ijk[2]))];
+        if (!(brick > 0.f))
             return 0.f;
         const uint32_t nl = lo->CoordToOffset(ijk);
         if (!lo->data()->isChild(nl))
-            return clamp0(std::max(lo->data()->getValue(nl), m[L.lower_slot + 2 * li + 1]));
+            return clamp0(std::max(lo->data()->getValue(nl), std::min(m[slot + 1], brick)));
         return clamp0(m[uint32_t(lo->data()->getChild(nl) - tree.getFirstNode<0>())]);
     }
     return clamp0(m[L.background_slot]);

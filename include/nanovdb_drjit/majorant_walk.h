@@ -11,11 +11,13 @@
     (majorant_table.h, filled by src/loader/node_majorants.cpp):
 
       leaf                    its slot            (max over leaf + ring)
-      lower / upper tile      max(value, R)       (R: the node's ring bound)
+      lower tile              max(value, min(R, brick M))
+      upper tile              max(value, R)       (R: the node's ring bound)
       root tile, background   their slots
 
-    Empty space costs one step per node. Where a whole lower or upper node
-    is optically thin for this ray -- its bound M times its width is at most
+    Empty space costs one step per node. Where a whole upper node, lower
+    node or brick (32^3, a level between a lower node and its leaves) is
+    optically thin for this ray -- its bound M times its width is at most
     `coarse_limit` -- the walk crosses it as one cell with the bound M
     instead of visiting its children (Cycles' rule of refining only where
     the majorant times the cell's size is large). The caller sets
@@ -127,6 +129,7 @@ template <typename Float> struct MajorantWalk {
     UInt32 lower;                   ///< kept lower node (word address; 0: none)
     dr::Array<Int32, 3> lower_key;  ///< its 128^3 block (absolute ijk >> 7)
     Float lower_M, lower_R;         ///< its bounds
+    UInt32 lower_slot;              ///< its first slot in the majorant table
 
     /// The end of the current cell along the ray (its bound holds on
     /// [hdda.tmin, segment_end()])
@@ -135,7 +138,7 @@ template <typename Float> struct MajorantWalk {
                            dr::minimum(hdda.next.z(), hdda.tmax));
     }
 
-    DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_R)
+    DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_R, lower_slot)
 };
 
 namespace detail {
@@ -153,7 +156,8 @@ template <typename UInt32> struct CellInfo {
     Float bound;
     UInt32 lower;              ///< 0 if the cell is above the lower level
     Float lower_M, lower_R;
-    DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_R)
+    UInt32 lower_slot;
+    DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_R, lower_slot)
 };
 
 /// The traversal from the root down to the lower node of the cell at
@@ -202,10 +206,11 @@ CellInfo<UInt32> cell_above_lower(const Buffer &buf, const Root &root,
     out.bound = dr::select(upper_tile, dr::maximum(tile_value, R_U), out.bound);
 
     LowerHandle<UInt32> lower = upper_get_child<GridType>(buf, upper, n, has_lower);
-    UInt32 lower_slot = g.lower_slot + 2u * lower_words(UInt32(lower.address - g.lower_begin));
+    out.lower_slot = g.lower_slot +
+                     LOWER_SLOTS * lower_words(UInt32(lower.address - g.lower_begin));
     out.lower = dr::select(has_lower, lower.address, UInt32(0u));
-    out.lower_M = read_bound(g.words(), lower_slot, has_lower);
-    out.lower_R = read_bound(g.words(), UInt32(lower_slot + 1u), has_lower);
+    out.lower_M = read_bound(g.words(), out.lower_slot, has_lower);
+    out.lower_R = read_bound(g.words(), UInt32(out.lower_slot + 1u), has_lower);
     return out;
 }
 
@@ -245,6 +250,7 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     cell.lower = walk.lower;
     cell.lower_M = walk.lower_M;
     cell.lower_R = walk.lower_R;
+    cell.lower_slot = walk.lower_slot;
     auto from_root = [buf, root, g, ijk, coarse_limit](const Cell &kept_cell, const Mask &fresh_) {
         Cell out = detail::cell_above_lower<GridType>(buf, root, g, ijk, coarse_limit, fresh_);
         return dr::select(fresh_, out, kept_cell);
@@ -261,16 +267,27 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     walk.lower = dr::select(fresh & in_lower, cell.lower, walk.lower);
     walk.lower_M = dr::select(fresh & in_lower, cell.lower_M, walk.lower_M);
     walk.lower_R = dr::select(fresh & in_lower, cell.lower_R, walk.lower_R);
+    walk.lower_slot = dr::select(fresh & in_lower, cell.lower_slot, walk.lower_slot);
     for (int k = 0; k < 3; ++k)
         walk.lower_key[k] = dr::select(fresh & in_lower, key[k], walk.lower_key[k]);
 
-    // In a lower node: one cell if thin, else its entry (a leaf or a tile)
+    // In a lower node: one cell if thin, else its brick: one cell if thin,
+    // else its entry (a leaf or a tile)
     Mask thin_lower = in_lower & (cell.lower_M * 128.f <= coarse_limit);
     Mask into_lower = in_lower & !thin_lower;
+    UInt32 u[3];
+    for (int k = 0; k < 3; ++k)
+        u[k] = dr::reinterpret_array<UInt32>(ijk[k]) & 127u;
+    UInt32 brick = ((u[0] >> BRICK_LOG2_DIM) << 4) | ((u[1] >> BRICK_LOG2_DIM) << 2) |
+                   (u[2] >> BRICK_LOG2_DIM);
+    Float brick_M = detail::read_bound(g.words(), UInt32(cell.lower_slot + 2u + brick), into_lower);
+    Mask thin_brick = into_lower & (brick_M * float(1u << BRICK_LOG2_DIM) <= coarse_limit);
+    Mask into_brick = into_lower & !thin_brick;
+
     LowerHandle<UInt32> lower{ cell.lower };
     UInt32 n = lower_coord_to_offset(ijk);
-    Mask has_leaf = lower_get_child_mask(buf, lower, n, into_lower);
-    Mask lower_tile = into_lower & !has_leaf;
+    Mask has_leaf = lower_get_child_mask(buf, lower, n, into_brick);
+    Mask lower_tile = into_brick & !has_leaf;
     dr::float32_array_t<UInt32> tile_value =
         read_float(buf, lower_get_table_address<GridType>(lower, n), lower_tile);
     LeafHandle<UInt32> leaf = lower_get_child<GridType>(buf, lower, n, has_leaf);
@@ -278,10 +295,14 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     Float leaf_bound = detail::read_bound(g.words(), leaf_slot, has_leaf);
 
     Float bound = dr::select(thin_lower, cell.lower_M, cell.bound);
-    bound = dr::select(lower_tile, dr::maximum(tile_value, cell.lower_R), bound);
+    bound = dr::select(thin_brick, brick_M, bound);
+    // A tile's ring lies in its brick's ringed region: R, but at most brick M
+    bound = dr::select(lower_tile, dr::maximum(tile_value, dr::minimum(cell.lower_R, brick_M)),
+                       bound);
     bound = dr::select(has_leaf, leaf_bound, bound);
     UInt32 dim = dr::select(thin_lower, UInt32(128u), cell.dim);
-    dim = dr::select(into_lower, UInt32(8u), dim);
+    dim = dr::select(thin_brick, UInt32(1u << BRICK_LOG2_DIM), dim);
+    dim = dr::select(into_brick, UInt32(8u), dim);
 
     // max(bound, 0) also turns the -Inf of a node without values into 0
     walk.majorant = dr::select(active, dr::minimum(dr::maximum(bound, 0.f), g.clamp),
@@ -290,21 +311,20 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
 }
 
 /// Beyond PNanoVDB's hdda_update: the walk's cell becomes the cell of size
-/// `dim` whose first voxel is `voxel` (no position is floored again, so a
-/// rounding error cannot move the walk back across the boundary it crossed)
+/// `dim` whose first voxel is `voxel`, entered at `pos` (the ray at
+/// h.tmin). No position is floored again, so a rounding error cannot move
+/// the walk back across the boundary it crossed; 1 / direction comes from
+/// the DDA's own step and delta, without a division.
 template <typename Float>
-void walk_set_cell(Hdda<Float> &h, const dr::Array<Float, 3> &origin,
-                   const dr::Array<Float, 3> &direction,
+void walk_set_cell(Hdda<Float> &h, const dr::Array<Float, 3> &pos,
                    const dr::int32_array_t<Float> &dim,
                    const dr::Array<dr::int32_array_t<Float>, 3> &voxel,
                    const dr::mask_t<Float> &active) {
-    dr::Array<Float, 3> pos = hdda_ray_start(origin, h.tmin, direction);
-    dr::Array<Float, 3> dir_inv = Float(1.f) / direction;
     h.dim = dr::select(active, dim, h.dim);
     for (int a = 0; a < 3; ++a) {
         h.voxel[a] = dr::select(active, voxel[a], h.voxel[a]);
         Float boundary = Float(dr::select(h.step[a] > 0, voxel[a] + dim, voxel[a]));
-        Float next = h.tmin + (boundary - pos[a]) * dir_inv[a];
+        Float next = h.tmin + (boundary - pos[a]) * (Float(h.step[a]) * h.delta[a]);
         h.next[a] = dr::select(active & (h.step[a] != 0), next, h.next[a]);
     }
 }
@@ -369,12 +389,13 @@ dr::mask_t<Float> walk_advance(const Buffer &buf, const Root &root,
 
     // The cell entered is h.voxel at the old size; the point where the ray
     // enters it, kept inside it, picks the new cell and its size
-    dr::Array<Int32, 3> p = hdda_pos_to_ijk(hdda_ray_start(origin, h.tmin, direction));
+    dr::Array<Float, 3> pos = hdda_ray_start(origin, h.tmin, direction);
+    dr::Array<Int32, 3> p = hdda_pos_to_ijk(pos);
     for (int a = 0; a < 3; ++a)
         p[a] = dr::clip(p[a], h.voxel[a], h.voxel[a] + h.dim - 1);
     Int32 dim = walk_classify<GridType>(buf, root, g, walk, p, coarse_limit, go);
     Mask resize = go & (dim != h.dim);
-    walk_set_cell(h, origin, direction, dim, cell_of(p, dim), resize);
+    walk_set_cell(h, pos, dim, cell_of(p, dim), resize);
     return go;
 }
 

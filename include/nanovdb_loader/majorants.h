@@ -54,6 +54,8 @@ float max_in_box(const ValidatedGrid &grid, const IndexBox &box);
  *  - lower / upper node, R: the max of the ring of those of its tiles whose
  *    ring holds a value above the tile's own (-Inf if there is none), so
  *    that max(tile value, R) bounds every tile of the node with its ring;
+ *  - lower node brick (4^3 per node, 32^3 voxels each): the max over the
+ *    ringed brick, that is over the ringed regions of its 4^3 entries;
  *  - root tile: a tile with a child: that upper node's M; without child:
  *    the max over the ringed 4096^3 block; a tile that a lookup never
  *    reaches (a later tile with the key of an earlier one): -Inf;

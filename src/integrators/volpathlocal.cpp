@@ -646,13 +646,62 @@ private:
         UnpolarizedSpectrum weight;   ///< the path throughput's factor
     };
 
+    /// A flight through a tracked medium: the walk, the position t along
+    /// the ray, and the optical depth tau left to the next tentative collision
+    struct Flight {
+        Mask alive;     ///< false once the walk has ended (or a real collision)
+        Mask searching; ///< inside next_collision(): not yet at a collision
+        Walk walk;
+        Float t, tau;
+        DRJIT_STRUCT(Flight, alive, searching, walk, t, tau)
+    };
+
+    /// A flight from the start of the medium's range, with a fresh tau
+    Flight begin_flight(const Tracked &k, const WalkRay &wr, const Float &mint,
+                        const Float &maxt, Sampler *sampler, const Mask &active) const {
+        Flight f;
+        f.alive = active;
+        f.searching = false;
+        f.walk = k.volume->walk_begin(wr, mint, maxt, active);
+        f.t = mint;
+        f.tau = -dr::log(1.f - sampler->next_1d(active));
+        return f;
+    }
+
+    /**
+     * Moves every living flight to its next tentative collision: consumes
+     * tau segment by segment of the walk (tentative collisions come at rate
+     * mu = scale x the segment's bound) until tau < mu x (what is left of
+     * the segment), where t becomes the collision; a flight whose walk ends
+     * first dies. One loop of walk steps only, so that the lookups that
+     * follow run for all lanes of a packet at once.
+     */
+    void next_collision(const Tracked &k, const WalkRay &wr, Flight &flight) const {
+        flight.searching = flight.alive;
+        const ScalarFloat scale = k.scale;
+        dr::tie(flight) = dr::while_loop(
+            dr::make_tuple(flight), [](const Flight &f) { return f.searching; },
+            [k, wr, scale](Flight &f) {
+                Float mu = scale * f.walk.majorant, end = f.walk.segment_end(),
+                      t = dr::maximum(f.t, f.walk.hdda.tmin), depth = mu * (end - t);
+                Mask found = f.searching && (f.tau < depth), miss = f.searching && !found;
+                f.t = dr::select(found, t + f.tau / mu, f.t);
+                f.searching &= !found;
+                dr::masked(f.tau, miss) = f.tau - depth;
+                dr::masked(f.t, miss) = end;
+                Mask more = k.volume->walk_advance(f.walk, wr, miss);
+                f.alive &= !(miss && !more);
+                f.searching &= more;
+            },
+            "volpathlocal: walk to the next collision");
+    }
+
     /**
      * Delta tracking along `ray` through tracked medium k up to tmax (the
-     * nearest surface). Tentative collisions come at rate mu(t) = scale x
-     * the walk's bound, by carrying an exponential optical depth `tau`
-     * across segments; each is real with probability mean(mu_t) / mu.
-     * Returns the first real collision with the weight
-     * prod(mu_n / mean(mu_n)) over the null ones x mu_s / mean(mu_t).
+     * nearest surface): tentative collisions from next_collision(), each
+     * real with probability mean(mu_t) / mu. Returns the first real
+     * collision with the weight prod(mu_n / mean(mu_n)) over the null ones
+     * x mu_s / mean(mu_t).
      */
     Collision track_collision(const Tracked &k, const Ray3f &ray, const Float &tmax,
                               Sampler *sampler, Mask active) const {
@@ -664,19 +713,13 @@ private:
                                         active);
 
         struct TrackState {
-            Mask active;
-            Walk walk;
-            Float t, tau;
+            Flight flight;
             UnpolarizedSpectrum weight, sigma_s, sigma_t;
             Float majorant;
             Mask real;
             Sampler *sampler;
-            DRJIT_STRUCT(TrackState, active, walk, t, tau, weight, sigma_s, sigma_t, majorant,
-                         real, sampler)
-        } ts = { active,
-                 k.volume->walk_begin(wr, mint, maxt, active),
-                 mint,
-                 -dr::log(1.f - sampler->next_1d(active)),
+            DRJIT_STRUCT(TrackState, flight, weight, sigma_s, sigma_t, majorant, real, sampler)
+        } ts = { begin_flight(k, wr, mint, maxt, sampler, active),
                  UnpolarizedSpectrum(1.f),
                  dr::zeros<UnpolarizedSpectrum>(),
                  dr::zeros<UnpolarizedSpectrum>(),
@@ -685,45 +728,34 @@ private:
                  sampler };
 
         dr::tie(ts) = dr::while_loop(
-            dr::make_tuple(ts), [](const TrackState &ts) { return ts.active; },
+            dr::make_tuple(ts), [](const TrackState &ts) { return ts.flight.alive; },
             [this, k, ray, wr, mint, scale](TrackState &ts) {
-                Float mu = scale * ts.walk.majorant,
-                      end = ts.walk.segment_end(),
-                      t = dr::maximum(ts.t, ts.walk.hdda.tmin),
-                      depth = mu * (end - t);
-                Mask hit = ts.active && (ts.tau < depth), miss = ts.active && !hit;
-
-                // A tentative collision in this segment: real or null?
-                Float tc = t + ts.tau / mu;
+                next_collision(k, wr, ts.flight);
+                Mask hit = ts.flight.alive;
+                if (dr::none_or<false>(hit))
+                    return; // (scalar: the walk ended)
+                Float mu = scale * ts.flight.walk.majorant;
                 Float xi = ts.sampler->next_1d(hit), u = ts.sampler->next_1d(hit);
-                MediumInteraction3f mei = interaction_at(k, ray, tc, mint);
-                auto [sigma_s, sigma_n, sigma_t] =
-                    k.medium->get_scattering_coefficients(mei, hit);
+                auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(
+                    interaction_at(k, ray, ts.flight.t, mint), hit);
                 DRJIT_MARK_USED(sigma_n);
                 Float p_real = dr::mean(sigma_t) / mu;
                 Mask real = hit && (xi < p_real), null = hit && !real;
-                UnpolarizedSpectrum mu_n = mu - sigma_t;
-                dr::masked(ts.weight, null) *= mu_n / (mu * (1.f - p_real));
+                dr::masked(ts.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));
                 dr::masked(ts.sigma_s, real) = sigma_s;
                 dr::masked(ts.sigma_t, real) = sigma_t;
                 dr::masked(ts.majorant, real) = mu;
-                ts.t = dr::select(hit, tc, t);
-                dr::masked(ts.tau, null) = -dr::log(1.f - u);
+                dr::masked(ts.flight.tau, null) = -dr::log(1.f - u);
                 ts.real |= real;
-                ts.active &= !real;
-
-                // No collision in this segment: on to the next
-                dr::masked(ts.tau, miss) = ts.tau - depth;
-                dr::masked(ts.t, miss) = end;
-                Mask more = k.volume->walk_advance(ts.walk, wr, miss);
-                ts.active &= !(miss && !more);
+                ts.flight.alive &= !real;
             },
             "volpathlocal: delta tracking");
 
         Collision c;
         c.real = ts.real;
-        c.mei = interaction_at(k, ray, dr::select(ts.real, ts.t, dr::Infinity<Float>), mint);
-        c.mei.p = ray(ts.t);
+        const Float &t = ts.flight.t;
+        c.mei = interaction_at(k, ray, dr::select(ts.real, t, dr::Infinity<Float>), mint);
+        c.mei.p = ray(t);
         c.mei.sigma_s = ts.sigma_s;
         c.mei.sigma_t = ts.sigma_t;
         c.mei.sigma_n = ts.majorant - ts.sigma_t;
@@ -734,8 +766,8 @@ private:
 
     /**
      * Ratio tracking along `ray` through tracked medium k up to tmax: the
-     * transmittance estimate prod(mu_n / mu) over tentative collisions
-     * sampled as in track_collision().
+     * transmittance estimate prod(mu_n / mu) over the tentative collisions
+     * of next_collision().
      */
     UnpolarizedSpectrum track_transmittance(const Tracked &k, const Ray3f &ray,
                                             const Float &tmax, Sampler *sampler,
@@ -747,44 +779,29 @@ private:
                                         active);
 
         struct RatioState {
-            Mask active;
-            Walk walk;
-            Float t, tau;
+            Flight flight;
             UnpolarizedSpectrum transmittance;
             Sampler *sampler;
-            DRJIT_STRUCT(RatioState, active, walk, t, tau, transmittance, sampler)
-        } rs = { active,
-                 k.volume->walk_begin(wr, mint, maxt, active),
-                 mint,
-                 -dr::log(1.f - sampler->next_1d(active)),
-                 UnpolarizedSpectrum(1.f),
+            DRJIT_STRUCT(RatioState, flight, transmittance, sampler)
+        } rs = { begin_flight(k, wr, mint, maxt, sampler, active), UnpolarizedSpectrum(1.f),
                  sampler };
 
         dr::tie(rs) = dr::while_loop(
-            dr::make_tuple(rs), [](const RatioState &rs) { return rs.active; },
+            dr::make_tuple(rs), [](const RatioState &rs) { return rs.flight.alive; },
             [this, k, ray, wr, mint, scale](RatioState &rs) {
-                Float mu = scale * rs.walk.majorant,
-                      end = rs.walk.segment_end(),
-                      t = dr::maximum(rs.t, rs.walk.hdda.tmin),
-                      depth = mu * (end - t);
-                Mask hit = rs.active && (rs.tau < depth), miss = rs.active && !hit;
-
-                Float tc = t + rs.tau / mu;
+                next_collision(k, wr, rs.flight);
+                Mask hit = rs.flight.alive;
+                if (dr::none_or<false>(hit))
+                    return;
+                Float mu = scale * rs.flight.walk.majorant;
                 Float u = rs.sampler->next_1d(hit);
-                MediumInteraction3f mei = interaction_at(k, ray, tc, mint);
-                auto [sigma_s, sigma_n, sigma_t] =
-                    k.medium->get_scattering_coefficients(mei, hit);
+                auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(
+                    interaction_at(k, ray, rs.flight.t, mint), hit);
                 DRJIT_MARK_USED(sigma_s);
                 DRJIT_MARK_USED(sigma_n);
                 dr::masked(rs.transmittance, hit) *= (mu - sigma_t) / mu;
-                rs.t = dr::select(hit, tc, t);
-                dr::masked(rs.tau, hit) = -dr::log(1.f - u);
-                rs.active &= !(hit && dr::all(rs.transmittance == 0.f));
-
-                dr::masked(rs.tau, miss) = rs.tau - depth;
-                dr::masked(rs.t, miss) = end;
-                Mask more = k.volume->walk_advance(rs.walk, wr, miss);
-                rs.active &= !(miss && !more);
+                dr::masked(rs.flight.tau, hit) = -dr::log(1.f - u);
+                rs.flight.alive &= !(hit && dr::all(rs.transmittance == 0.f));
             },
             "volpathlocal: ratio tracking");
         return rs.transmittance;

@@ -15,6 +15,7 @@
 #include "detail.h"
 
 #include <algorithm>
+#include <iterator>
 #include <cmath>
 #include <limits>
 #include <unordered_map>
@@ -280,28 +281,37 @@ private:
     /// A lower node at byte `node`, first voxel `o`: returns its M
     float lower(uint64_t node, const int32_t o[3]) {
         float M = kNone, R = kNone;
+        float brick[nanovdb_drjit::LOWER_BRICK_COUNT];
+        std::fill(std::begin(brick), std::end(brick), kNone);
         for (uint32_t n = 0; n < layout::LOWER_TABLE_COUNT; ++n) {
             const int32_t eo[3] = { wrap_add(o[0], int64_t(n >> 8) << 3),
                                     wrap_add(o[1], int64_t((n >> 4) & 15) << 3),
                                     wrap_add(o[2], int64_t(n & 15) << 3) };
             const uint64_t e = node + m_c.lower_off_table + uint64_t(n) * m_c.table_stride;
+            float r;
             if (child_bit(node, layout::LOWER_OFF_CHILD_MASK, n)) {
                 const uint64_t leaf = uint64_t(int64_t(node) + load<int64_t>(m_buf + e));
                 const size_t i = leaf_index(leaf);
-                float r = m_grid.leaf_max()[i];
+                r = m_grid.leaf_max()[i];
                 ring(0, eo, r);
                 raise(m_out.values[i], r);
-                raise(M, r);
-                continue;
+            } else {
+                const float v = start(load<float>(m_buf + e));
+                r = v;
+                ring(0, eo, r);
+                if (r > v)
+                    raise(R, r);
             }
-            const float v = start(load<float>(m_buf + e));
-            float r = v;
-            ring(0, eo, r);
             raise(M, r);
-            if (r > v)
-                raise(R, r);
+            raise(brick[nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
+                                                uint32_t((n >> 4) & 15) << 3,
+                                                uint32_t(n & 15) << 3)], r);
         }
-        store(m_out.layout.lower_slot + 2 * uint32_t(lower_index(node)), M, R);
+        const uint32_t slot =
+            m_out.layout.lower_slot + nanovdb_drjit::LOWER_SLOTS * uint32_t(lower_index(node));
+        store(slot, M, R);
+        for (uint32_t b = 0; b < nanovdb_drjit::LOWER_BRICK_COUNT; ++b)
+            raise(m_out.values[slot + 2 + b], brick[b]);
         return M;
     }
 

@@ -73,9 +73,10 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
  * - count_lookups
    - |bool|
    - A benchmarking aid: count the lookups (``eval*`` calls, per lane) and
-     the steps of majorant walks (see the ``volpathlocal`` integrator), at
-     the cost of an atomic add each; ``to_string()`` reports both counts
-     (``lookup_count``, ``walk_step_count``). (Default: ``false``)
+     the cells majorant walks enter (see the ``volpathlocal`` integrator),
+     at the cost of an atomic add each; ``to_string()`` reports the counts
+     (``lookup_count``, ``walk_step_count``, and the steps by cell: empty,
+     8, 32, 128 and 4096 voxels wide). (Default: ``false``)
 
 This plugin renders sparse volumes stored as NanoVDB grids directly, without
 a dense conversion: a cloud that needs hundreds of megabytes as a dense
@@ -172,7 +173,7 @@ public:
         m_count = props.get<bool>("count_lookups", false);
         if constexpr (dr::is_jit_v<Float>) {
             if (m_count) {
-                m_counters = dr::zeros<UInt64>(2);
+                m_counters = dr::zeros<UInt64>(kCounters);
                 dr::make_opaque(m_counters);
             }
         }
@@ -280,20 +281,22 @@ public:
 
     Walk walk_begin(const WalkRay &r, const Float &tmin, const Float &tmax,
                     Mask active) const override {
-        count(1, active);
-        return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+        Walk walk = m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
             return nanovdb_drjit::walk_begin(buf, root, m_majorants, Array3f(r.origin),
                                              Array3f(r.direction), tmin, tmax, r.coarse_limit,
                                              active);
         });
+        count_step(walk, active && nanovdb_drjit::walk_valid(walk));
+        return walk;
     }
 
     Mask walk_advance(Walk &walk, const WalkRay &r, Mask active) const override {
-        count(1, active);
-        return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+        Mask more = m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
             return nanovdb_drjit::walk_advance(buf, root, m_majorants, walk, Array3f(r.origin),
                                                Array3f(r.direction), r.coarse_limit, active);
         });
+        count_step(walk, more);
+        return more;
     }
 
     MI_DECLARE_CLASS(NanoVDBVolume)
@@ -333,8 +336,8 @@ private:
         return trilinear_at(rel, active);
     }
 
-    /// count_lookups: adds the active lanes to counter `which` (0: lookups,
-    /// 1: walk steps). A benchmarking aid: an atomic add per call.
+    /// count_lookups: adds the active lanes to counter `which` (see
+    /// kCounterNames). A benchmarking aid: an atomic add per call.
     void count(int which, const Mask &active) const {
         if (!m_count)
             return;
@@ -344,19 +347,38 @@ private:
             m_scalar_counters[which].fetch_add(1, std::memory_order_relaxed);
     }
 
+    /// A cell the walk entered: counted, by its bound (zero or not) and size
+    void count_step(const Walk &walk, const Mask &active) const {
+        if (!m_count)
+            return;
+        count(1, active);
+        count(2, active && walk.majorant == 0.f);
+        const int32_t dims[4] = { 8, 32, 128, 4096 };
+        for (int i = 0; i < 4; ++i)
+            count(3 + i, active && walk.hdda.dim == dims[i]);
+    }
+
+    static constexpr int kCounters = 7;
+    static constexpr const char *kCounterNames[kCounters] = {
+        "lookup_count", "walk_step_count", "walk_empty_step_count", "walk_step_8_count",
+        "walk_step_32_count", "walk_step_128_count", "walk_step_4096_count"
+    };
+
     std::string counters_string() const {
         if (!m_count)
             return "";
-        uint64_t c[2];
+        uint64_t c[kCounters];
         if constexpr (dr::is_jit_v<Float>) {
             dr::eval(m_counters);
             dr::store(c, m_counters);
         } else {
-            for (int i = 0; i < 2; ++i)
+            for (int i = 0; i < kCounters; ++i)
                 c[i] = m_scalar_counters[i].load();
         }
-        return "  lookup_count = " + std::to_string(c[0]) + ",\n  walk_step_count = " +
-               std::to_string(c[1]) + ",\n";
+        std::string out;
+        for (int i = 0; i < kCounters; ++i)
+            out += std::string("  ") + kCounterNames[i] + " = " + std::to_string(c[i]) + ",\n";
+        return out;
     }
 
     /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal),
@@ -626,7 +648,7 @@ private:
     bool m_use_grid_transform = false;
     bool m_count = false;                        // count_lookups
     mutable UInt64 m_counters;                   // ... JIT: lookups, walk steps
-    mutable std::atomic<uint64_t> m_scalar_counters[2] = { 0, 0 }; // ... scalar
+    mutable std::atomic<uint64_t> m_scalar_counters[kCounters] = {}; // ... scalar
     nanovdb_loader::InvalidValues m_invalid_values = nanovdb_loader::InvalidValues::Error;
     std::string m_filename, m_grid_name;
 

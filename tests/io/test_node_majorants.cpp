@@ -140,8 +140,8 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
         }
     };
     CHECK(maj.values.size() == L.size);
-    CHECK(L.size == tree.nodeCount(0) + 2 * tree.nodeCount(1) + 2 * tree.nodeCount(2) +
-                        tree.root().tileCount() + 1);
+    CHECK(L.size == tree.nodeCount(0) + nanovdb_drjit::LOWER_SLOTS * tree.nodeCount(1) +
+                        2 * tree.nodeCount(2) + tree.root().tileCount() + 1);
 
     // Leaves: voxel by voxel through NanoVDB's accessor
     auto acc = grid.getAccessor();
@@ -166,10 +166,22 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
             continue;
         float M_tiles = kNone;
         const float R = ring_bound(v, lower[i], o, 4096, 4, 3, M_tiles);
-        check(maj.values[L.lower_slot + 2 * i],
+        const uint32_t slot = L.lower_slot + nanovdb_drjit::LOWER_SLOTS * i;
+        check(maj.values[slot],
               box_max(v, o[0] - 1, o[1] - 1, o[2] - 1, o[0] + 128, o[1] + 128, o[2] + 128),
               "lower " + std::to_string(i) + " M");
-        check(maj.values[L.lower_slot + 2 * i + 1], R, "lower " + std::to_string(i) + " R");
+        check(maj.values[slot + 1], R, "lower " + std::to_string(i) + " R");
+        // Its bricks of 32^3, over their ringed regions
+        for (int32_t bx = 0; bx < 128; bx += 32)
+            for (int32_t by = 0; by < 128; by += 32)
+                for (int32_t bz = 0; bz < 128; bz += 32) {
+                    const int64_t x = int64_t(o[0]) + bx, y = int64_t(o[1]) + by,
+                                  z = int64_t(o[2]) + bz;
+                    check(maj.values[slot + 2 + nanovdb_drjit::brick_of(uint32_t(bx), uint32_t(by),
+                                                                        uint32_t(bz))],
+                          box_max(v, x - 1, y - 1, z - 1, x + 32, y + 32, z + 32),
+                          "lower " + std::to_string(i) + " brick");
+                }
         ++n.lowers;
     }
     // Upper nodes: M always, R for the first few (32768 tiles each)
