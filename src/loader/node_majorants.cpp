@@ -232,11 +232,12 @@ private:
                 }
     }
 
-    /// Raises m to the ring of the cell of `level` (0: 8^3, 1: 128^3,
-    /// 2: 4096^3) whose first voxel is `o`: the layers of its 26 neighbours
-    /// that touch it
-    void ring(int level, const int32_t o[3], float &m) {
-        const int64_t dim = int64_t(1) << (level == 0 ? 3 : level == 1 ? 7 : 12);
+    /// Calls fn(neighbour's first voxel, layers) for the 26 neighbours of the
+    /// cell of 2^log2dim voxels whose first voxel is `o`; `layers` are the
+    /// neighbour's layers that touch the cell (`ours`: the cell's own layers
+    /// that touch the neighbour)
+    template <typename Fn>
+    static void for_each_neighbour(const int32_t o[3], uint32_t log2dim, bool ours, Fn &&fn) {
         for (int dx = -1; dx <= 1; ++dx)
             for (int dy = -1; dy <= 1; ++dy)
                 for (int dz = -1; dz <= 1; ++dz) {
@@ -246,11 +247,21 @@ private:
                     int32_t n[3];
                     Layer sel[3];
                     for (int a = 0; a < 3; ++a) {
-                        n[a] = wrap_add(o[a], d[a] * dim);
-                        sel[a] = d[a] > 0 ? LOW : d[a] < 0 ? HIGH : ALL;
+                        n[a] = wrap_add(o[a], int64_t(d[a]) * (int64_t(1) << log2dim));
+                        sel[a] = d[a] == 0 ? ALL : ((d[a] > 0) != ours) ? LOW : HIGH;
                     }
-                    layer_max(find(level, n), sel, m);
+                    fn(n, sel);
                 }
+    }
+
+    /// Raises m to the ring of the cell of `level` (0: 8^3, 1: 128^3,
+    /// 2: 4096^3) whose first voxel is `o`: the layers of its 26 neighbours
+    /// that touch it
+    void ring(int level, const int32_t o[3], float &m) {
+        const uint32_t log2dim = level == 0 ? 3 : level == 1 ? 7 : 12;
+        for_each_neighbour(o, log2dim, false, [&](const int32_t n[3], const Layer sel[3]) {
+            layer_max(find(level, n), sel, m);
+        });
     }
 
     // ---- Bottom-up: entries, then their node --------------------------------------
@@ -331,21 +342,11 @@ private:
             const Cover self = child != 0
                                    ? Cover{ 2, uint64_t(int64_t(m_root) + child), 0.f }
                                    : Cover{ -1, 0, load<float>(m_buf + tile + m_c.root_tile_off_value) };
-            for (int dx = -1; dx <= 1; ++dx)
-                for (int dy = -1; dy <= 1; ++dy)
-                    for (int dz = -1; dz <= 1; ++dz) {
-                        if (!dx && !dy && !dz)
-                            continue;
-                        const int d[3] = { dx, dy, dz };
-                        int32_t n[3];
-                        Layer sel[3];
-                        for (int a = 0; a < 3; ++a) {
-                            n[a] = wrap_add(o[a], int64_t(d[a]) << 12);
-                            sel[a] = d[a] > 0 ? HIGH : d[a] < 0 ? LOW : ALL; // our side
-                        }
-                        if (m_tiles.count(key_of(n)) == 0)
-                            layer_max(self, sel, m);
-                    }
+            for_each_neighbour(o, layout::ROOT_TILE_LOG2, true,
+                               [&](const int32_t n[3], const Layer sel[3]) {
+                                   if (m_tiles.count(key_of(n)) == 0)
+                                       layer_max(self, sel, m);
+                               });
         }
         m_out.values[m_out.layout.background_slot] = m;
     }
