@@ -2,7 +2,12 @@
 
     python3 scenes/render_cloud.py VOLUME.nvdb OUT.png [--variant llvm_ad_rgb]
                                    [--grid NAME] [--filter trilinear|nearest]
+                                   [--integrator volpathlocal|volpath]
                                    [--spp 64] [--res 256]
+
+The integrator is volpathlocal (volpath with majorants per node of the
+NanoVDB tree: the same image, faster on sparse volumes); --integrator volpath
+renders with Mitsuba's own.
 """
 import argparse
 import os
@@ -13,14 +18,15 @@ import mitsuba as mi
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-def cloud_scene(volume, grid="", filter_type="trilinear", spp=64, res=256):
+def cloud_scene(volume, grid="", filter_type="trilinear", spp=64, res=256,
+                integrator="volpathlocal"):
     """The Python-dict form of scenes/cloud.xml."""
     sigma_t = {"type": "nanovdbvolume", "filename": volume, "filter_type": filter_type}
     if grid:
         sigma_t["grid"] = grid
     return {
         "type": "scene",
-        "integrator": {"type": "volpath", "max_depth": 64},
+        "integrator": {"type": integrator, "max_depth": 64},
         "sensor": {
             "type": "perspective",
             "fov": 35,
@@ -55,21 +61,22 @@ def main():
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--grid", default="")
     ap.add_argument("--filter", default="trilinear", choices=["trilinear", "nearest"])
+    ap.add_argument("--integrator", default="volpathlocal", choices=["volpathlocal", "volpath"])
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--build", default=os.path.join(HERE, "..", "build"),
-                    help="directory holding plugins/nanovdbvolume.so")
+                    help="directory holding plugins/nanovdbvolume.so and volpathlocal.so")
     args = ap.parse_args()
 
     mi.set_variant(args.variant)
     mi.file_resolver().prepend(os.path.abspath(args.build))
     scene = mi.load_dict(cloud_scene(os.path.abspath(args.volume), args.grid,
-                                     args.filter, args.spp, args.res))
+                                     args.filter, args.spp, args.res, args.integrator))
     t0 = time.time()
     image = mi.render(scene)
     mi.util.write_bitmap(args.output, image)
     print(f"{args.output}: {args.res}x{args.res}, {args.spp} spp, {args.variant}, "
-          f"{time.time() - t0:.2f} s")
+          f"{args.integrator}, {time.time() - t0:.2f} s")
 
 
 if __name__ == "__main__":
