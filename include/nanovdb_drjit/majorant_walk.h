@@ -251,7 +251,10 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     cell.lower_M = walk.lower_M;
     cell.lower_R = walk.lower_R;
     cell.lower_slot = walk.lower_slot;
-    auto from_root = [buf, root, g, ijk, coarse_limit](const Cell &kept_cell, const Mask &fresh_) {
+    // g by reference: on the scalar path its table is a host vector, which a
+    // copy per step would duplicate (dr::if_stmt calls the lambda at once)
+    auto from_root = [buf, root, &g, ijk, coarse_limit](const Cell &kept_cell,
+                                                         const Mask &fresh_) {
         Cell out = detail::cell_above_lower<GridType>(buf, root, g, ijk, coarse_limit, fresh_);
         return dr::select(fresh_, out, kept_cell);
     };
