@@ -189,7 +189,8 @@ struct Reference {
 
 /// The bound of the finest cell holding absolute voxel ijk, by hand: NanoVDB's
 /// node structs find the node, the loader's table gives its bound (nodes and
-/// bricks with M <= 0 are crossed whole, as the walk does with coarse_limit = 0)
+/// bricks with M - m <= 0 are crossed whole, as the walk does with
+/// coarse_limit = 0)
 float expected_bound(const WalkGrid &g, const nanovdb::Coord &ijk) {
     const auto &tree = g.handle.grid<float>()->tree();
     const auto &root = tree.root();
@@ -204,20 +205,21 @@ float expected_bound(const WalkGrid &g, const nanovdb::Coord &ijk) {
         if (!tile->isChild())
             return clamp0(m[L.tile_slot + t]);
         const auto *up = root.data()->getChild(tile);
-        const uint32_t ui = uint32_t(up - tree.getFirstNode<2>());
-        if (!(m[L.upper_slot + 2 * ui] > 0.f))
-            return 0.f;
+        const uint32_t uslot = L.upper_slot + ndr::UPPER_SLOTS * uint32_t(up - tree.getFirstNode<2>());
+        // A node of one value (M - m <= 0) is crossed whole, with its M
+        if (!(m[uslot] - m[uslot + 2] > 0.f))
+            return clamp0(m[uslot]);
         const uint32_t nu = up->CoordToOffset(ijk);
         if (!up->data()->isChild(nu))
-            return clamp0(std::max(up->data()->getValue(nu), m[L.upper_slot + 2 * ui + 1]));
+            return clamp0(std::max(up->data()->getValue(nu), m[uslot + 1]));
         const auto *lo = up->data()->getChild(nu);
         const uint32_t slot = L.lower_slot + ndr::LOWER_SLOTS * uint32_t(lo - tree.getFirstNode<1>());
-        if (!(m[slot] > 0.f))
-            return 0.f;
-        const float brick = m[slot + 2 + ndr::brick_of(uint32_t(ijk[0]), uint32_t(ijk[1]),
+        if (!(m[slot] - m[slot + 2] > 0.f))
+            return clamp0(m[slot]);
+        const float brick = m[slot + 3 + ndr::brick_of(uint32_t(ijk[0]), uint32_t(ijk[1]),
                                                         uint32_t(ijk[2]))];
-        if (!(brick > 0.f))
-            return 0.f;
+        if (!(brick - m[slot + 2] > 0.f))
+            return clamp0(brick);
         const uint32_t nl = lo->CoordToOffset(ijk);
         if (!lo->data()->isChild(nl))
             return clamp0(std::max(lo->data()->getValue(nl), std::min(m[slot + 1], brick)));

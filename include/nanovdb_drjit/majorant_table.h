@@ -12,13 +12,16 @@
     The array, in slots of one float:
 
       [0, leaf_count)                         one per leaf, in leaf array order
-      lower_slot + 66 n + {0, 1, 2 + b}       lower node n: M, R, brick b's M
-      upper_slot + 2 n, upper_slot + 2 n + 1  upper node n: M, R
+      lower_slot + 67 n + {0, 1, 2, 3 + b}    lower node n: M, R, m, brick b's M
+      upper_slot + 3 n + {0, 1, 2}            upper node n: M, R, m
       tile_slot + t                           root tile t, in table order
       background_slot                         the background
 
     M bounds the node's whole region; R is the node's "ring bound" for its
-    tiles: a tile of value v is bounded by max(v, R). A leaf's slot bounds
+    tiles: a tile of value v is bounded by max(v, R); m is the smallest value
+    the node stores (without ring: not a bound, a measure of how uniform the
+    node is -- M - m small means crossing it whole adds few null collisions,
+    however large M is). A leaf's slot bounds
     its 8^3 voxels. A lower node is also cut into 4^3 bricks of 32^3 voxels
     (b = x-major brick index), each with its own M: a level between the
     lower node and its leaves that lets a walk cross thin parts of a node
@@ -40,8 +43,9 @@ namespace nanovdb_drjit {
 /// A lower node's bricks: 4^3 bricks of 32^3 voxels (4^3 of its entries)
 static constexpr uint32_t BRICK_LOG2_DIM = 5;
 static constexpr uint32_t LOWER_BRICK_COUNT = 64;
-/// Slots per lower node: M, R and one per brick
-static constexpr uint32_t LOWER_SLOTS = 2 + LOWER_BRICK_COUNT;
+/// Slots per lower node: M, R, m and one per brick; per upper node: M, R, m
+static constexpr uint32_t LOWER_SLOTS = 3 + LOWER_BRICK_COUNT;
+static constexpr uint32_t UPPER_SLOTS = 3;
 
 /// The brick (0..63) of a lower node that holds local coordinate ijk & 127
 constexpr uint32_t brick_of(uint32_t i, uint32_t j, uint32_t k) {
@@ -69,7 +73,7 @@ struct MajorantTableLayout {
         t.tile_begin_word  = root_word + root_size / 4;
         t.lower_slot       = node_count[0];
         t.upper_slot       = t.lower_slot + LOWER_SLOTS * node_count[1];
-        t.tile_slot        = t.upper_slot + 2 * node_count[2];
+        t.tile_slot        = t.upper_slot + UPPER_SLOTS * node_count[2];
         t.background_slot  = t.tile_slot + root_tile_count;
         t.size             = t.background_slot + 1;
         return t;

@@ -15,12 +15,13 @@
       upper tile              max(value, R)       (R: the node's ring bound)
       root tile, background   their slots
 
-    Empty space costs one step per node. Where a whole upper node, lower
-    node or brick (32^3, a level between a lower node and its leaves) is
-    optically thin for this ray -- its bound M times its width is at most
-    `coarse_limit` -- the walk crosses it as one cell with the bound M
-    instead of visiting its children (Cycles' rule of refining only where
-    the majorant times the cell's size is large). The caller sets
+    Empty space costs one step per node. Where crossing a whole upper node,
+    lower node or brick (32^3, a level between a lower node and its leaves)
+    as one cell with its bound M adds few null collisions for this ray --
+    (M - m) times its width is at most `coarse_limit`, m the node's smallest
+    value -- the walk does so instead of visiting its children (Cycles' rule
+    of refining only where (max - min) times the cell's size is large):
+    empty nodes, thin ones, and nodes of one value, however dense. The caller sets
     coarse_limit from the medium's scale and the optical depth per cell it
     accepts; 0 walks every leaf.
 
@@ -128,7 +129,7 @@ template <typename Float> struct MajorantWalk {
     Float majorant;                 ///< bound of the current cell (unscaled)
     UInt32 lower;                   ///< kept lower node (word address; 0: none)
     dr::Array<Int32, 3> lower_key;  ///< its 128^3 block (absolute ijk >> 7)
-    Float lower_M, lower_R;         ///< its bounds
+    Float lower_M, lower_R, lower_m; ///< its bounds, and its smallest value
     UInt32 lower_slot;              ///< its first slot in the majorant table
 
     /// The end of the current cell along the ray (its bound holds on
@@ -138,7 +139,8 @@ template <typename Float> struct MajorantWalk {
                            dr::minimum(hdda.next.z(), hdda.tmax));
     }
 
-    DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_R, lower_slot)
+    DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_R, lower_m,
+                 lower_slot)
 };
 
 namespace detail {
@@ -155,9 +157,9 @@ template <typename UInt32> struct CellInfo {
     UInt32 dim;
     Float bound;
     UInt32 lower;              ///< 0 if the cell is above the lower level
-    Float lower_M, lower_R;
+    Float lower_M, lower_R, lower_m;
     UInt32 lower_slot;
-    DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_R, lower_slot)
+    DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_R, lower_m, lower_slot)
 };
 
 /// The traversal from the root down to the lower node of the cell at
@@ -190,10 +192,12 @@ CellInfo<UInt32> cell_above_lower(const Buffer &buf, const Root &root,
 
     // An upper node: one cell if thin, else its entry
     UpperHandle<UInt32> upper = root_get_child(root, delta);
-    UInt32 upper_slot = g.upper_slot + 2u * upper_words(UInt32(upper.address - g.upper_begin));
+    UInt32 upper_slot =
+        g.upper_slot + UPPER_SLOTS * upper_words(UInt32(upper.address - g.upper_begin));
     Float M_U = read_bound(g.words(), upper_slot, has_upper),
-          R_U = read_bound(g.words(), UInt32(upper_slot + 1u), has_upper);
-    Mask thin_upper = has_upper & (M_U * 4096.f <= coarse_limit);
+          R_U = read_bound(g.words(), UInt32(upper_slot + 1u), has_upper),
+          m_U = read_bound(g.words(), UInt32(upper_slot + 2u), has_upper);
+    Mask thin_upper = has_upper & ((M_U - m_U) * 4096.f <= coarse_limit);
     out.bound = dr::select(has_upper, M_U, out.bound);
     Mask into_upper = has_upper & !thin_upper;
 
@@ -211,6 +215,7 @@ CellInfo<UInt32> cell_above_lower(const Buffer &buf, const Root &root,
     out.lower = dr::select(has_lower, lower.address, UInt32(0u));
     out.lower_M = read_bound(g.words(), out.lower_slot, has_lower);
     out.lower_R = read_bound(g.words(), UInt32(out.lower_slot + 1u), has_lower);
+    out.lower_m = read_bound(g.words(), UInt32(out.lower_slot + 2u), has_lower);
     return out;
 }
 
@@ -250,6 +255,7 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     cell.lower = walk.lower;
     cell.lower_M = walk.lower_M;
     cell.lower_R = walk.lower_R;
+    cell.lower_m = walk.lower_m;
     cell.lower_slot = walk.lower_slot;
     // g by reference: on the scalar path its table is a host vector, which a
     // copy per step would duplicate (dr::if_stmt calls the lambda at once)
@@ -270,21 +276,24 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     walk.lower = dr::select(fresh & in_lower, cell.lower, walk.lower);
     walk.lower_M = dr::select(fresh & in_lower, cell.lower_M, walk.lower_M);
     walk.lower_R = dr::select(fresh & in_lower, cell.lower_R, walk.lower_R);
+    walk.lower_m = dr::select(fresh & in_lower, cell.lower_m, walk.lower_m);
     walk.lower_slot = dr::select(fresh & in_lower, cell.lower_slot, walk.lower_slot);
     for (int k = 0; k < 3; ++k)
         walk.lower_key[k] = dr::select(fresh & in_lower, key[k], walk.lower_key[k]);
 
     // In a lower node: one cell if thin, else its brick: one cell if thin,
     // else its entry (a leaf or a tile)
-    Mask thin_lower = in_lower & (cell.lower_M * 128.f <= coarse_limit);
+    Mask thin_lower = in_lower & ((cell.lower_M - cell.lower_m) * 128.f <= coarse_limit);
     Mask into_lower = in_lower & !thin_lower;
     UInt32 u[3];
     for (int k = 0; k < 3; ++k)
         u[k] = dr::reinterpret_array<UInt32>(ijk[k]) & 127u;
     UInt32 brick = ((u[0] >> BRICK_LOG2_DIM) << 4) | ((u[1] >> BRICK_LOG2_DIM) << 2) |
                    (u[2] >> BRICK_LOG2_DIM);
-    Float brick_M = detail::read_bound(g.words(), UInt32(cell.lower_slot + 2u + brick), into_lower);
-    Mask thin_brick = into_lower & (brick_M * float(1u << BRICK_LOG2_DIM) <= coarse_limit);
+    Float brick_M = detail::read_bound(g.words(), UInt32(cell.lower_slot + 3u + brick), into_lower);
+    // (the node's m is at most the brick's smallest value)
+    Mask thin_brick = into_lower & ((brick_M - cell.lower_m) * float(1u << BRICK_LOG2_DIM) <=
+                                    coarse_limit);
     Mask into_brick = into_lower & !thin_brick;
 
     LowerHandle<UInt32> lower{ cell.lower };

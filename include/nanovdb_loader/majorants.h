@@ -54,6 +54,10 @@ float max_in_box(const ValidatedGrid &grid, const IndexBox &box);
  *  - lower / upper node, R: the max of the ring of those of its tiles whose
  *    ring holds a value above the tile's own (-Inf if there is none), so
  *    that max(tile value, R) bounds every tile of the node with its ring;
+ *  - lower / upper node, m: the smallest value the node stores (its tiles
+ *    and its leaves' voxels; no ring, NaN skipped; +Inf if none): not a
+ *    bound but a measure of uniformity, M - m, for the walk's choice of
+ *    crossing the node whole;
  *  - lower node brick (4^3 per node, 32^3 voxels each): the max over the
  *    ringed brick, that is over the ringed regions of its 4^3 entries;
  *  - root tile: a tile with a child: that upper node's M; without child:
@@ -75,5 +79,17 @@ struct NodeMajorants {
 };
 
 NodeMajorants node_majorants(const ValidatedGrid &grid);
+
+/**
+ * The mean over the voxels of `box` of the bound of the majorant walk's
+ * finest cell there (leaves, tiles, 32^3 bricks and nodes of one value,
+ * the background; each bound clamped to [0, clamp]): the mean density of
+ * tentative collisions that tracking against the walk's bounds costs, to
+ * compare with `clamp`, the one majorant of the whole volume. Near 1 x
+ * clamp, the walk cannot save null collisions (a volume of one density);
+ * far below, it saves most. O(entries of the nodes meeting the box).
+ */
+double mean_bound(const ValidatedGrid &grid, const NodeMajorants &majorants, const IndexBox &box,
+                  float clamp);
 
 } // namespace nanovdb_loader

@@ -98,6 +98,10 @@ public:
     /// The largest value of each leaf (NaN skipped; -Inf if all its values
     /// are NaN), in leaf array order: what majorants are built from
     const std::vector<float> &leaf_max() const { return m_leaf_max; }
+    /// The smallest value of each leaf (NaN skipped; +Inf if all its values
+    /// are NaN), in leaf array order: what lets majorant tracking see that a
+    /// node holds one value and cross it whole
+    const std::vector<float> &leaf_min() const { return m_leaf_min; }
 
 private:
     friend ValidatedGrid validate_float_grid(const std::string &, void *, uint64_t);
@@ -111,7 +115,7 @@ private:
     uint64_t m_bytes = 0;
     GridSummary m_summary;
     ValueStats m_values;
-    std::vector<float> m_leaf_max;
+    std::vector<float> m_leaf_min, m_leaf_max;
 };
 
 /// Validates a float grid buffer (its first grid, when it holds several) and

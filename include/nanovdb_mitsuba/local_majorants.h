@@ -41,6 +41,15 @@ public:
     virtual ~LocalMajorants() = default;
 
     /**
+     * The mean over the volume of the walk's finest bounds, as a fraction
+     * of max() (nanovdb_loader::mean_bound): near 1 the walk cannot save
+     * null collisions (a volume of one density) and only costs its steps;
+     * far below 1 it saves most of them. The integrator uses it to decide
+     * whether tracking through the walk pays.
+     */
+    virtual ScalarFloat local_majorant_ratio() const = 0;
+
+    /**
      * The ray in index space. `thin_depth` (per unit of eval_1) sets which
      * nodes are crossed whole: those whose bound M makes the optical depth
      * of any chord through them at most thin_depth * M * chord length,

@@ -45,6 +45,16 @@ Volumetric path tracer with local majorants (:monosp:`volpathlocal`)
    - |bool|
    - Hide directly visible emitters. (Default: no, i.e. |false|)
 
+ * - max_majorant_ratio
+   - |float|
+   - A ``nanovdbvolume`` medium is tracked through its local majorants only
+     if they average at most this fraction of its global majorant over the
+     volume (its ``to_string()`` shows the fraction as
+     ``local_majorant_ratio``: 0.06 for a real smoke, 1 for a cube of one
+     density). Above it the walk would cost its steps and save almost no
+     null collisions, and the medium is tracked as ``volpath`` does.
+     (Default: 0.75)
+
  * - coarse_optical_depth
    - |float|
    - Nodes of a NanoVDB tree (lower and upper internal nodes) whose majorant
@@ -114,6 +124,9 @@ public:
         if (!(m_coarse_depth >= 0.f) || !std::isfinite(m_coarse_depth))
             Throw("volpathlocal: coarse_optical_depth must be a finite value >= 0, got %f",
                   m_coarse_depth);
+        m_max_ratio = props.get<ScalarFloat>("max_majorant_ratio", 0.75f);
+        if (!(m_max_ratio >= 0.f && m_max_ratio <= 1.f))
+            Throw("volpathlocal: max_majorant_ratio must be in [0, 1], got %f", m_max_ratio);
     }
 
     TensorXf render(Scene *scene, Sensor *sensor, UInt32 seed = 0, uint32_t spp = 0,
@@ -187,9 +200,11 @@ public:
                            "  max_depth = %i,\n"
                            "  rr_depth = %i,\n"
                            "  coarse_optical_depth = %f,\n"
+                           "  max_majorant_ratio = %f,\n"
                            "  tracked media = %zu\n"
                            "]",
-                           m_max_depth, m_rr_depth, m_coarse_depth, m_tracked.size());
+                           m_max_depth, m_rr_depth, m_coarse_depth, m_max_ratio,
+                           m_tracked.size());
     }
 
     MI_DECLARE_CLASS(VolumetricPathLocalMajorants)
@@ -250,8 +265,17 @@ private:
             FindParameters p;
             const_cast<Medium *>(m)->traverse(&p);
             const Majorants *v = p.sigma_t ? dynamic_cast<const Majorants *>(p.sigma_t) : nullptr;
-            if (v && p.has_scale)
-                tracked.push_back({ m, v, p.scale });
+            if (!v || !p.has_scale)
+                continue;
+            // A volume of (nearly) one density: the walk would cost its steps
+            // and save no null collisions; track it as volpath does
+            if (v->local_majorant_ratio() > m_max_ratio) {
+                Log(Debug, "volpathlocal: local majorants average %.2f of the global one "
+                           "(above max_majorant_ratio = %.2f): tracked as volpath does",
+                    v->local_majorant_ratio(), m_max_ratio);
+                continue;
+            }
+            tracked.push_back({ m, v, p.scale });
         }
         Log(Debug, "volpathlocal: %zu of %zu media tracked through local majorants",
             tracked.size(), media.size());
@@ -830,6 +854,7 @@ private:
     }
 
     ScalarFloat m_coarse_depth;
+    ScalarFloat m_max_ratio;
     mutable std::vector<Tracked> m_tracked;
     mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
     mutable std::mutex m_prepare_mutex;

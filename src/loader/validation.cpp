@@ -9,6 +9,7 @@
 #include "value_stats.h"
 
 #include <string>
+#include <tuple>
 #include <vector>
 
 namespace nanovdb_loader {
@@ -155,8 +156,9 @@ public:
              const layout::GridTypeConstants &c)
         : m_path(path), m_buf(buf), m_g(g), m_c(c) {}
 
-    /// The largest value of every leaf (NaN skipped), in leaf array order
-    std::vector<float> leaf_max;
+    /// The smallest and largest value of every leaf (NaN skipped), in leaf
+    /// array order
+    std::vector<float> leaf_min, leaf_max;
 
     ValueStats run() {
         const uint8_t *r = m_buf + m_g.root;
@@ -216,10 +218,12 @@ private:
 
     /// Leaves hold almost all values: a vectorizable pass per leaf
     void leaves() {
+        leaf_min.resize(m_g.leaf.count);
         leaf_max.resize(m_g.leaf.count);
         for (uint64_t n = 0; n < m_g.leaf.count; ++n) {
             const uint64_t table = m_g.leaf.begin + n * m_c.leaf_size + m_c.leaf_off_table;
-            leaf_max[n] = m_values.add_run<layout::LEAF_TABLE_COUNT>(m_buf + table, table);
+            std::tie(leaf_min[n], leaf_max[n]) =
+                m_values.add_run<layout::LEAF_TABLE_COUNT>(m_buf + table, table);
         }
     }
 
@@ -311,6 +315,7 @@ ValidatedGrid validate_float_grid(const std::string &path, const void *data, uin
     ValidatedGrid grid;
     TreeWalk walk(path, buf, regions, c);
     grid.m_values = walk.run();
+    grid.m_leaf_min = std::move(walk.leaf_min);
     grid.m_leaf_max = std::move(walk.leaf_max);
     grid.m_summary = summarize(buf, regions, name, c);
     grid.m_path = path;

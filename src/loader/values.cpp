@@ -20,8 +20,9 @@ struct ValueRewriter {
         return grid.m_data;
     }
     static void set_values(ValidatedGrid &grid, const ValueStats &stats,
-                           std::vector<float> leaf_max) {
+                           std::vector<float> leaf_min, std::vector<float> leaf_max) {
         grid.m_values = stats;
+        grid.m_leaf_min = std::move(leaf_min);
         grid.m_leaf_max = std::move(leaf_max);
     }
 };
@@ -236,7 +237,8 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
     ValueAccumulator after;
     const GridSummary &s = grid.summary();
     const layout::GridTypeConstants &c = constants(grid);
-    std::vector<float> leaf_max(s.node_count[0], -std::numeric_limits<float>::infinity());
+    std::vector<float> leaf_min(s.node_count[0], std::numeric_limits<float>::infinity()),
+                       leaf_max(s.node_count[0], -std::numeric_limits<float>::infinity());
     // The leaf array's bytes (validated disjoint from every other region)
     const uint64_t leaves = s.node_begin[0], leaves_end = leaves + uint64_t(s.node_count[0]) * c.leaf_size;
     for_each_value(grid, [&](uint8_t *p, uint64_t byte) {
@@ -250,11 +252,12 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
             std::memcpy(p, &w, sizeof(float));
         after.add(w, byte);
         if (byte >= leaves && byte < leaves_end) { // a leaf value
-            float &m = leaf_max[size_t((byte - leaves) / c.leaf_size)];
-            m = std::max(m, w);
+            const size_t leaf = size_t((byte - leaves) / c.leaf_size);
+            leaf_min[leaf] = std::min(leaf_min[leaf], w);
+            leaf_max[leaf] = std::max(leaf_max[leaf], w);
         }
     });
-    ValueRewriter::set_values(grid, after.finish(), std::move(leaf_max));
+    ValueRewriter::set_values(grid, after.finish(), std::move(leaf_min), std::move(leaf_max));
     return r;
 }
 

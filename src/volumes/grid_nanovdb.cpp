@@ -246,6 +246,7 @@ public:
             << "  bytes = " << m_grid_bytes << "," << std::endl
             << "  backend_bytes = " << m_backend_bytes << "," << std::endl
             << "  majorant_bytes = " << m_majorant_bytes << "," << std::endl
+            << "  local_majorant_ratio = " << m_majorant_ratio << "," << std::endl
             << counters_string()
             << "  reader = " << (m_reader.root_indexed ? "root index" : "root search")
             << (m_reader.compact_offsets ? ", 32-bit child offsets" : ", 64-bit child offsets")
@@ -263,6 +264,8 @@ public:
     // No MI_MASK_ARGUMENT here: on scalar variants it would make every call
     // active, and the walk is stepped with masks (a lane that met a null
     // collision stays in its segment).
+
+    ScalarFloat local_majorant_ratio() const override { return m_majorant_ratio; }
 
     WalkRay walk_ray(const Ray3f &ray, const Float &thin_depth, Mask /* active */) const override {
         WalkRay r;
@@ -504,6 +507,9 @@ private:
             m_majorants = nanovdb_drjit::MajorantGrid<UInt32>::make(
                 majorants.layout, majorants.values, 1.f + 0x1p-20f, m_max_host, base);
             m_majorant_bytes = (size_t) majorants.bytes();
+            const double mean = loader::mean_bound(
+                decoded.grid, majorants, loader::lookup_box(summary, !m_nearest), m_max_host);
+            m_majorant_ratio = m_max_host > 0.f ? ScalarFloat(mean / m_max_host) : 1.f;
             for (int k = 0; k < 3; ++k)
                 m_cell_base_host[k] = base[k];
 
@@ -642,6 +648,7 @@ private:
     size_t m_grid_bytes = 0;      // the grid's bytes
     size_t m_backend_bytes = 0;   // what the backend holds for it (padded to 64 B)
     size_t m_majorant_bytes = 0;  // the per-node bounds beside it
+    ScalarFloat m_majorant_ratio = 1.f; // their mean over the volume / max()
     int32_t m_cell_base_host[3] = { 0, 0, 0 };       // the walk's base (multiple of 4096)
     dr::Matrix<double, 4> m_index_from_world_host;   // use_grid_transform, in double
     bool m_nearest = false;

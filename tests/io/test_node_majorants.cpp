@@ -141,7 +141,41 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
     };
     CHECK(maj.values.size() == L.size);
     CHECK(L.size == tree.nodeCount(0) + nanovdb_drjit::LOWER_SLOTS * tree.nodeCount(1) +
-                        2 * tree.nodeCount(2) + tree.root().tileCount() + 1);
+                        nanovdb_drjit::UPPER_SLOTS * tree.nodeCount(2) +
+                        tree.root().tileCount() + 1);
+    // m: every internal node's smallest value, through NanoVDB's node structs
+    auto leaf_min = [](const auto &leaf) {
+        float m = std::numeric_limits<float>::infinity();
+        for (uint32_t n = 0; n < 512; ++n)
+            if (leaf.getValue(n) < m)
+                m = leaf.getValue(n);
+        return m;
+    };
+    auto lower_min = [&](const auto &lo) {
+        float m = std::numeric_limits<float>::infinity();
+        for (uint32_t n = 0; n < 4096; ++n) {
+            const float v = lo.data()->isChild(n) ? leaf_min(*lo.data()->getChild(n))
+                                                  : lo.data()->getValue(n);
+            if (v < m)
+                m = v;
+        }
+        return m;
+    };
+    for (uint32_t i = 0; i < tree.nodeCount(1); ++i)
+        check(maj.values[L.lower_slot + nanovdb_drjit::LOWER_SLOTS * i + 2],
+              lower_min(tree.getFirstNode<1>()[i]), "lower " + std::to_string(i) + " m");
+    for (uint32_t i = 0; i < tree.nodeCount(2); ++i) {
+        const auto &up = tree.getFirstNode<2>()[i];
+        float m = std::numeric_limits<float>::infinity();
+        for (uint32_t n = 0; n < 32768; ++n) {
+            const float v = up.data()->isChild(n) ? lower_min(*up.data()->getChild(n))
+                                                  : up.data()->getValue(n);
+            if (v < m)
+                m = v;
+        }
+        check(maj.values[L.upper_slot + nanovdb_drjit::UPPER_SLOTS * i + 2], m,
+              "upper " + std::to_string(i) + " m");
+    }
 
     // Leaves: voxel by voxel through NanoVDB's accessor
     auto acc = grid.getAccessor();
@@ -177,7 +211,7 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
                 for (int32_t bz = 0; bz < 128; bz += 32) {
                     const int64_t x = int64_t(o[0]) + bx, y = int64_t(o[1]) + by,
                                   z = int64_t(o[2]) + bz;
-                    check(maj.values[slot + 2 + nanovdb_drjit::brick_of(uint32_t(bx), uint32_t(by),
+                    check(maj.values[slot + 3 + nanovdb_drjit::brick_of(uint32_t(bx), uint32_t(by),
                                                                         uint32_t(bz))],
                           box_max(v, x - 1, y - 1, z - 1, x + 32, y + 32, z + 32),
                           "lower " + std::to_string(i) + " brick");
@@ -190,13 +224,14 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
         const nanovdb::Coord o = origins.of.at(&upper[i]);
         if (!ring_in_range(o, 4096))
             continue;
-        check(maj.values[L.upper_slot + 2 * i],
+        check(maj.values[L.upper_slot + nanovdb_drjit::UPPER_SLOTS * i],
               box_max(v, o[0] - 1, o[1] - 1, o[2] - 1, o[0] + 4096, o[1] + 4096, o[2] + 4096),
               "upper " + std::to_string(i) + " M");
         if (i < max_uppers_with_R) {
             float M_tiles = kNone;
             const float R = ring_bound(v, upper[i], o, 32768, 5, 7, M_tiles);
-            check(maj.values[L.upper_slot + 2 * i + 1], R, "upper " + std::to_string(i) + " R");
+            check(maj.values[L.upper_slot + nanovdb_drjit::UPPER_SLOTS * i + 1], R,
+                  "upper " + std::to_string(i) + " R");
         }
         ++n.uppers;
     }
@@ -211,7 +246,8 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
             continue;
         const float want =
             tile->isChild()
-                ? maj.values[L.upper_slot + 2 * uint32_t(root.data()->getChild(tile) - upper)]
+                ? maj.values[L.upper_slot + nanovdb_drjit::UPPER_SLOTS *
+                                                uint32_t(root.data()->getChild(tile) - upper)]
                 : std::max(nan_to_none(tile->value), ring_max(v, o, 4096));
         check(maj.values[L.tile_slot + t], want, "root tile " + std::to_string(t));
         ++n.tiles;
