@@ -11,7 +11,9 @@
         finest cell at its midpoint, found through NanoVDB's own node structs
         and the loader's majorant table (a walk done by hand); thin nodes
         (coarse_limit > 0) are crossed as one cell with the node's M;
-      - the LLVM walk equals the scalar walk bit for bit, step for step.
+      - the LLVM walk equals the scalar walk bit for bit, step for step, and
+        the faithful readers (PNanoVDB's root search, 64-bit child offsets)
+        walk exactly as the plan's fast readers.
 */
 
 #define PNANOVDB_C
@@ -243,11 +245,23 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
                 size_t segments = 0, points = 0, gaps = 0, exceed = 0, wrong_bound = 0,
                        truncated = 0;
                 const size_t per_ray = POINTS_PER_GRID / RAY_COUNT / 2;
+                // The faithful readers (64-bit child offsets, the root's linear
+                // search) must walk exactly as the plan's
+                ndr::Reader<uint32_t> faithful = ndr::Reader<uint32_t>::from_plan(g.plan.faithful());
+                size_t reader_mismatches = 0;
                 for (const Ray &r : rays) {
                     std::vector<Segment> segs = reader.apply(
                         g.words.data(), [&](const auto &buf, const auto &root) {
                             return walk_scalar(buf, root, mg, r);
                         });
+                    std::vector<Segment> segs_faithful = faithful.apply(
+                        g.words.data(), [&](const auto &buf, const auto &root) {
+                            return walk_scalar(buf, root, mg, r);
+                        });
+                    if (segs.size() != segs_faithful.size() ||
+                        (!segs.empty() && std::memcmp(segs.data(), segs_faithful.data(),
+                                                      segs.size() * sizeof(Segment)) != 0))
+                        ++reader_mismatches;
                     if (r.tmin < r.tmax && segs.empty()) {
                         ++gaps;
                         continue;
@@ -319,6 +333,7 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
                         " segments, ", points, " points; ", gaps, " gaps, ", exceed,
                         " bounds exceeded, ", wrong_bound, " wrong bounds, ", truncated,
                         " truncated");
+                CHECK(reader_mismatches == 0);
                 CHECK(gaps == 0);
                 CHECK(exceed == 0);
                 CHECK(wrong_bound == 0);

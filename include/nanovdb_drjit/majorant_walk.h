@@ -47,6 +47,7 @@
 
 #pragma once
 
+#include <nanovdb_drjit/fast_readers.h>
 #include <nanovdb_drjit/hdda.h>
 #include <nanovdb_drjit/majorant_table.h>
 #include <nanovdb_drjit/pnanovdb.h>
@@ -131,6 +132,8 @@ template <typename Float> struct MajorantWalk {
     dr::Array<Int32, 3> lower_key;  ///< its 128^3 block (absolute ijk >> 7)
     Float lower_M, lower_R, lower_m; ///< its bounds, and its smallest value
     UInt32 lower_slot;              ///< its first slot in the majorant table
+    UInt32 brick_slot;              ///< the last brick's slot (0: none)
+    Float brick_M;                  ///< ... and its bound
 
     /// The end of the current cell along the ray (its bound holds on
     /// [hdda.tmin, segment_end()])
@@ -140,10 +143,25 @@ template <typename Float> struct MajorantWalk {
     }
 
     DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_R, lower_m,
-                 lower_slot)
+                 lower_slot, brick_slot, brick_M)
 };
 
 namespace detail {
+
+/// The child offset of a table entry whose low word `lo` was read already,
+/// as read_int64_as_word_delta returns it: the high word is read too ...
+template <typename UInt32, typename Buffer>
+DRJIT_INLINE UInt32 child_delta_from_low(const Buffer &buf, const UInt32 &address,
+                                         const UInt32 &lo, const dr::mask_t<UInt32> &active) {
+    return (lo >> 2) | (read_uint32(buf, UInt32(address + 1u), active) << 30);
+}
+
+/// ... except where the plan says every offset fits in the low word
+template <typename UInt32, typename Buffer>
+DRJIT_INLINE UInt32 child_delta_from_low(const CompactOffsets<Buffer> &, const UInt32 &,
+                                         const UInt32 &lo, const dr::mask_t<UInt32> &) {
+    return lo >> 2;
+}
 
 template <typename UInt32, typename Table>
 DRJIT_INLINE dr::float32_array_t<UInt32> read_bound(const Table &table, const UInt32 &slot,
@@ -290,19 +308,30 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
         u[k] = dr::reinterpret_array<UInt32>(ijk[k]) & 127u;
     UInt32 brick = ((u[0] >> BRICK_LOG2_DIM) << 4) | ((u[1] >> BRICK_LOG2_DIM) << 2) |
                    (u[2] >> BRICK_LOG2_DIM);
-    Float brick_M = detail::read_bound(g.words(), UInt32(cell.lower_slot + 3u + brick), into_lower);
+    // The brick's bound: kept from the last step when it is the same brick
+    UInt32 brick_slot = cell.lower_slot + 3u + brick;
+    Mask same_brick = into_lower & (brick_slot == walk.brick_slot);
+    Float brick_M = dr::select(
+        same_brick, walk.brick_M,
+        detail::read_bound(g.words(), brick_slot, into_lower & !same_brick));
+    walk.brick_slot = dr::select(into_lower, brick_slot, walk.brick_slot);
+    walk.brick_M = dr::select(into_lower, brick_M, walk.brick_M);
     // (the node's m is at most the brick's smallest value)
     Mask thin_brick = into_lower & ((brick_M - cell.lower_m) * float(1u << BRICK_LOG2_DIM) <=
                                     coarse_limit);
     Mask into_brick = into_lower & !thin_brick;
 
+    // The entry: one read of its table word serves a tile (its value) and a
+    // leaf (its child offset)
     LowerHandle<UInt32> lower{ cell.lower };
     UInt32 n = lower_coord_to_offset(ijk);
     Mask has_leaf = lower_get_child_mask(buf, lower, n, into_brick);
     Mask lower_tile = into_brick & !has_leaf;
-    dr::float32_array_t<UInt32> tile_value =
-        read_float(buf, lower_get_table_address<GridType>(lower, n), lower_tile);
-    LeafHandle<UInt32> leaf = lower_get_child<GridType>(buf, lower, n, has_leaf);
+    UInt32 entry = lower_get_table_address<GridType>(lower, n);
+    UInt32 entry_word = read_uint32(buf, entry, into_brick);
+    Float tile_value = dr::reinterpret_array<Float>(entry_word);
+    LeafHandle<UInt32> leaf{ UInt32(lower.address +
+                                    detail::child_delta_from_low(buf, entry, entry_word, has_leaf)) };
     UInt32 leaf_slot = leaf_words(UInt32(leaf.address - g.leaf_begin));
     Float leaf_bound = detail::read_bound(g.words(), leaf_slot, has_leaf);
 

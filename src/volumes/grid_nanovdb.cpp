@@ -75,8 +75,9 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
    - A benchmarking aid: count the lookups (``eval*`` calls, per lane) and
      the cells majorant walks enter (see the ``volpathlocal`` integrator),
      at the cost of an atomic add each; ``to_string()`` reports the counts
-     (``lookup_count``, ``walk_step_count``, and the steps by cell: empty,
-     8, 32, 128 and 4096 voxels wide). (Default: ``false``)
+     (``lookup_count``, ``walk_step_count``, the steps by cell: empty, 8,
+     32, 128 and 4096 voxels wide, and ``walk_count``, the walks begun).
+     (Default: ``false``)
 
 This plugin renders sparse volumes stored as NanoVDB grids directly, without
 a dense conversion: a cloud that needs hundreds of megabytes as a dense
@@ -289,6 +290,7 @@ public:
                                              Array3f(r.direction), tmin, tmax, r.coarse_limit,
                                              active);
         });
+        count(7, active);
         count_step(walk, active && nanovdb_drjit::walk_valid(walk));
         return walk;
     }
@@ -361,10 +363,10 @@ private:
             count(3 + i, active && walk.hdda.dim == dims[i]);
     }
 
-    static constexpr int kCounters = 7;
+    static constexpr int kCounters = 8;
     static constexpr const char *kCounterNames[kCounters] = {
         "lookup_count", "walk_step_count", "walk_empty_step_count", "walk_step_8_count",
-        "walk_step_32_count", "walk_step_128_count", "walk_step_4096_count"
+        "walk_step_32_count", "walk_step_128_count", "walk_step_4096_count", "walk_count"
     };
 
     std::string counters_string() const {
