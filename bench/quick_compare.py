@@ -67,7 +67,9 @@ def main():
 
     images = {}
     for plugin, path in [("nanovdbvolume", nvdb), ("gridvolume", vol)]:
-        desc = cloud_scene(path, filter_type=args.filter, spp=args.spp, res=args.res)
+        # volpath: the plugins compared under Mitsuba's own integrator
+        desc = cloud_scene(path, filter_type=args.filter, spp=args.spp, res=args.res,
+                           integrator="volpath")
         desc["cube"]["interior"]["sigma_t"]["type"] = plugin
         volume, nbytes = backend_bytes(
             lambda: mi.load_dict(desc["cube"]["interior"]["sigma_t"]))

@@ -1,4 +1,9 @@
-"""CSV files, PNG plots and REPORT.md from the measurements of bench/run.py."""
+"""CSV files, PNG plots and REPORT.md from the measurements of bench/run.py.
+
+The plugin comparison (volpath with nanovdbvolume and gridvolume) is here;
+the integrator comparison's tables, plots and section are
+bench/report_integrator.py's.
+"""
 import argparse
 import csv
 import dataclasses
@@ -9,6 +14,7 @@ import platform
 import statistics
 import subprocess
 import sys
+import textwrap
 
 import numpy as np
 
@@ -38,6 +44,7 @@ TARGET_MEM_SAVING = 10.0
 # stores 4.19 bytes per voxel, so only empty space can be saved -- so the
 # large sparse forms of both are target cases too.
 SPARSE_CASES = ("sphere_fog", "cloud", "sphere_fog_256", "cloudfield_400")
+PLOT_DPI = 80  # small PNGs: they are committed
 
 
 def mib(b):
@@ -52,7 +59,7 @@ def write_csv(path, rows, fields=None):
     if not rows:
         open(path, "w").close()
         return
-    fields = fields or list(rows[0].keys())
+    fields = fields or list(dict.fromkeys(k for r in rows for k in r))  # in order of appearance
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         w.writeheader()
@@ -71,6 +78,12 @@ def backend_bytes(r):
     if r.get("jit_storage") is not None:
         return max(r["jit_storage"], r.get("alloc_held") or 0)
     return r.get("rss_held")
+
+
+def integrator_of(r):
+    """A result's or sweep point's integrator (results saved before the
+    integrator axis existed are all volpath's)."""
+    return r.get("integrator", "volpath")
 
 
 def find(results, **kw):
@@ -127,6 +140,17 @@ def machine_info():
 # ---------------------------------------------------------------------------
 # Derived tables
 
+def timing_fields(tag, r):
+    """A worker's render times at equal spp, as columns `tag`_... of a row."""
+    return {f"{tag}_median_s": r["warm_median_s"], f"{tag}_min_s": r["warm_min_s"],
+            f"{tag}_first_s": r["first_s"],
+            f"{tag}_jit_ms": (r["jit_codegen_ms"] + r["jit_backend_ms"])
+            if "jit_codegen_ms" in r else None,
+            f"{tag}_jit_kernels": r.get("jit_kernels"),
+            f"{tag}_load1": r["loadavg_start"][0],
+            f"{tag}_warm_s": " ".join(f"{t:.4f}" for t in r["warm_s"])}
+
+
 def time_rows(results):
     rows = []
     keys = sorted({(r["case"], r["variant"], r["filter"]) for r in results},
@@ -138,15 +162,8 @@ def time_rows(results):
                "res": (n or g)["spec"]["res"], "spp": (n or g)["spec"]["spp"],
                "runs": (n or g)["spec"]["runs"]}
         for tag, r in (("nano", n), ("grid", g)):
-            if r is None:
-                continue
-            row.update({f"{tag}_median_s": r["warm_median_s"], f"{tag}_min_s": r["warm_min_s"],
-                        f"{tag}_first_s": r["first_s"],
-                        f"{tag}_jit_ms": (r["jit_codegen_ms"] + r["jit_backend_ms"])
-                        if "jit_codegen_ms" in r else None,
-                        f"{tag}_jit_kernels": r.get("jit_kernels"),
-                        f"{tag}_load1": r["loadavg_start"][0],
-                        f"{tag}_warm_s": " ".join(f"{t:.4f}" for t in r["warm_s"])})
+            if r is not None:
+                row.update(timing_fields(tag, r))
         if n and g:
             row["ratio_median"] = n["warm_median_s"] / g["warm_median_s"]
             row["ratio_min"] = n["warm_min_s"] / g["warm_min_s"]
@@ -263,44 +280,17 @@ def plots(out, errors, trows, mrows, lrows, case_names, main_variant="llvm_ad_rg
     plt.rcParams.update({"font.size": 8})
     colors = {"nanovdbvolume": "tab:blue", "gridvolume": "tab:orange"}
     files = []
-    dpi = 80
+    dpi = PLOT_DPI
 
     for case in case_names:
         for variant in sorted({e["variant"] for e in errors if e["case"] == case}):
-            filters = [f for f in ("trilinear", "nearest")
-                       if any(e["case"] == case and e["variant"] == variant and e["filter"] == f
-                              for e in errors)]
-            fig, axes = plt.subplots(2, len(filters), figsize=(3.4 * len(filters), 4.8),
-                                     squeeze=False)
-            for j, filt in enumerate(filters):
-                for p in ("nanovdbvolume", "gridvolume"):
-                    pts = sorted(((e["time_s"], e["rmse"], e["ssim"], e["spp"]) for e in errors
-                                  if (e["case"], e["variant"], e["filter"], e["plugin"])
-                                  == (case, variant, filt, p)), key=lambda q: q[3])
-                    if not pts:
-                        continue
-                    t, r, s, n = zip(*pts)
-                    ls = "-" if p == "nanovdbvolume" else "--"
-                    axes[0, j].loglog(t, r, "o" + ls, ms=3, color=colors[p], label=p)
-                    axes[1, j].loglog(t, [max(1 - x, 1e-6) for x in s], "o" + ls, ms=3,
-                                      color=colors[p], label=p)
-                    if p == "gridvolume":
-                        for ti, ri, ni in zip(t, r, n):
-                            axes[0, j].annotate(str(ni), (ti, ri), fontsize=6,
-                                                textcoords="offset points", xytext=(3, 3))
-                axes[0, j].set_title(f"{filt}")
-                axes[0, j].set_ylabel("RMSE vs reference")
-                axes[1, j].set_ylabel("1 − SSIM")
-                axes[1, j].set_xlabel("render time, 8 sensors [s]")
-                axes[0, j].grid(True, which="both", alpha=0.3)
-                axes[1, j].grid(True, which="both", alpha=0.3)
-            axes[0, 0].legend(fontsize=7)
-            fig.suptitle(f"{case}, {variant}: error against time (labels: spp)", fontsize=9)
-            fig.tight_layout()
-            name = f"error_time_{case}_{variant}.png".replace(":", "_").replace("/", "_")
-            fig.savefig(os.path.join(out, name), dpi=dpi)
-            plt.close(fig)
-            files.append(name)
+            pts = [e for e in errors if e["case"] == case and e["variant"] == variant]
+            curves = [(p, lambda e, p=p: e["plugin"] == p, colors[p],
+                       "-" if p == "nanovdbvolume" else "--", p == "gridvolume")
+                      for p in ("nanovdbvolume", "gridvolume")]
+            files.append(error_time_figure(out, png_name("error_time", case, variant), pts,
+                                           curves, f"{case}, {variant}: error against time "
+                                           "(labels: spp)", dpi))
 
     # Render time ratios.
     if any("ratio_median" in t for t in trows):
@@ -320,10 +310,7 @@ def plots(out, errors, trows, mrows, lrows, case_names, main_variant="llvm_ad_rg
             axes[0, j].set_xticks(x, labels, rotation=20, ha="right")
             axes[0, j].set_title(f"{v}: render time nano / grid")
             axes[0, j].legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(os.path.join(out, "render_time_ratio.png"), dpi=dpi)
-        plt.close(fig)
-        files.append("render_time_ratio.png")
+        files.append(save_figure(fig, out, "render_time_ratio.png", dpi))
 
     # Memory.
     llvm = [m for m in mrows if m["variant"] == main_variant]
@@ -338,18 +325,16 @@ def plots(out, errors, trows, mrows, lrows, case_names, main_variant="llvm_ad_rg
         x = np.arange(len(labels))
         w = 0.8 / len(series)
         for k, (name, plugin, key) in enumerate(series):
+            # every row of a case holds its grid's bytes (one plugin may be missing)
             vals = [(c_rows(llvm, c, plugin, key) or np.nan)
-                    / c_rows(llvm, c, "nanovdbvolume", "grid_bytes") for c in labels]
+                    / next(m["grid_bytes"] for m in llvm if m["case"] == c) for c in labels]
             ax.bar(x + (k - len(series) / 2 + 0.5) * w, vals, w, label=name)
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_ylabel("× the grid's bytes (.nvdb)")
         ax.set_xticks(x, labels, rotation=15, ha="right")
         ax.set_title(f"{main_variant}: memory for the volume")
         ax.legend(fontsize=6, ncol=2)
-        fig.tight_layout()
-        fig.savefig(os.path.join(out, "memory.png"), dpi=dpi)
-        plt.close(fig)
-        files.append("memory.png")
+        files.append(save_figure(fig, out, "memory.png", dpi))
 
     # Lookups.
     rows = [r for r in lrows if r["variant"] != "scalar_rgb" and r["grid_per_s"]]
@@ -363,11 +348,56 @@ def plots(out, errors, trows, mrows, lrows, case_names, main_variant="llvm_ad_rg
         ax.set_ylabel("M eval_1 / s")
         ax.set_title(f"{rows[0]['variant']}: random lookups")
         ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(os.path.join(out, "lookups.png"), dpi=dpi)
-        plt.close(fig)
-        files.append("lookups.png")
+        files.append(save_figure(fig, out, "lookups.png", dpi))
     return files
+
+
+def png_name(prefix, case, variant):
+    return f"{prefix}_{case}_{variant}.png".replace(":", "_").replace("/", "_")
+
+
+def error_time_figure(out, name, errors, curves, title, dpi):
+    """Writes OUT/name, an error-against-time figure of one case and variant:
+    a column per filter found in `errors` (that case's and variant's sweep
+    points), RMSE on top, 1 − SSIM below, and a curve per (label, match,
+    color, line style, spp labels) in `curves`, match(e) picking its points.
+    Returns `name`."""
+    import matplotlib.pyplot as plt
+    filters = [f for f in ("trilinear", "nearest") if any(e["filter"] == f for e in errors)]
+    fig, axes = plt.subplots(2, len(filters), figsize=(3.4 * len(filters), 4.8), squeeze=False)
+    for j, filt in enumerate(filters):
+        for label, match, color, ls, spp_labels in curves:
+            pts = sorted((e for e in errors if e["filter"] == filt and match(e)),
+                         key=lambda e: e["spp"])
+            if not pts:
+                continue
+            t = [e["time_s"] for e in pts]
+            axes[0, j].loglog(t, [e["rmse"] for e in pts], "o" + ls, ms=3, color=color,
+                              label=label)
+            axes[1, j].loglog(t, [max(1 - e["ssim"], 1e-6) for e in pts], "o" + ls, ms=3,
+                              color=color, label=label)
+            if spp_labels:
+                for e in pts:
+                    axes[0, j].annotate(str(e["spp"]), (e["time_s"], e["rmse"]), fontsize=6,
+                                        textcoords="offset points", xytext=(3, 3))
+        axes[0, j].set_title(f"{filt}")
+        axes[0, j].set_ylabel("RMSE vs reference")
+        axes[1, j].set_ylabel("1 − SSIM")
+        axes[1, j].set_xlabel("render time, 8 sensors [s]")
+        axes[0, j].grid(True, which="both", alpha=0.3)
+        axes[1, j].grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(textwrap.fill(title, 45 * len(filters)), fontsize=9)  # long case names
+    return save_figure(fig, out, name, dpi)
+
+
+def save_figure(fig, out, name, dpi, rect=None):
+    """Lays out, writes and closes a figure as OUT/name; returns `name`."""
+    import matplotlib.pyplot as plt
+    fig.tight_layout(rect=rect)
+    fig.savefig(os.path.join(out, name), dpi=dpi)
+    plt.close(fig)
+    return name
 
 
 def c_rows(rows, case, plugin, key):
@@ -404,15 +434,30 @@ class Tables:
     lookups: list     # lookup throughput per case, variant, filter
     equal_time: list  # error at equal time per case, variant, filter
     targets: list     # the issue's targets, measured
+    volpath_errors: list  # the plugin comparison's sweep points (volpath)
+    integrator_times: list       # per case, variant, filter of the integrator comparison
+    integrator_equal_time: list  # ... volpathlocal's error at equal time
+    integrator_targets: list     # ... its targets (llvm_ad_rgb)
 
     @classmethod
     def of(cls, run):
+        import report_integrator  # here, not at the top: it imports helpers of this module
         case_by_name = {c.name: c for c in run.cases}
-        times = time_rows(run.results)
-        memory = memory_rows(run.results, case_by_name)
-        return cls(times=times, memory=memory, lookups=lookup_rows(run.results),
-                   equal_time=equal_time_rows(run.errors),
-                   targets=target_rows(times, memory, case_by_name))
+        case_names = [c.name for c in run.cases]
+        # The plugin comparison: volpath's workers (volpathlocal's are the
+        # integrator comparison's)
+        volpath = [r for r in run.results if integrator_of(r) == "volpath"]
+        volpath_errors = [e for e in run.errors if integrator_of(e) == "volpath"]
+        times = time_rows(volpath)
+        memory = memory_rows(volpath, case_by_name)
+        itimes = report_integrator.time_rows(run.results, case_names)
+        return cls(times=times, memory=memory, lookups=lookup_rows(volpath),
+                   equal_time=equal_time_rows(volpath_errors),
+                   targets=target_rows(times, memory, case_by_name),
+                   volpath_errors=volpath_errors, integrator_times=itimes,
+                   integrator_equal_time=report_integrator.equal_time_rows(run.errors,
+                                                                           case_names),
+                   integrator_targets=report_integrator.target_rows(itimes, case_by_name))
 
 
 def mark(ok):
@@ -432,6 +477,7 @@ def write_all(run):
     if not os.path.exists(PERF_LOG):
         with open(PERF_LOG, "w") as f:
             f.write(PERF_LOG_HEADER)
+    import report_integrator
     L = (header_section(run, plot_note)
          + summary_section(t, main_variant)
          + cases_section(run.cases)
@@ -440,6 +486,8 @@ def write_all(run):
          + memory_section(t.memory, case_names, pngs)
          + error_time_section(t.equal_time, run.refs_info, pngs)
          + lookups_section(t.lookups, pngs)
+         + report_integrator.section(t.integrator_times, t.integrator_equal_time,
+                                     t.integrator_targets, pngs)
          + references_section(run.refs_info)
          + files_section(pngs)
          + (cuda_section(out) if run.args.mode != "gpu" else [])
@@ -470,14 +518,20 @@ def write_csvs(out, run, t):
               ["case", "filter", "plugin", "res", "spp", "passes", "time_s", "cached",
                "noise_rmse", "rmse_between"])
     write_csv(os.path.join(out, "targets.csv"), t.targets)
+    write_csv(os.path.join(out, "integrator_render_time.csv"), t.integrator_times)
+    write_csv(os.path.join(out, "integrator_error_equal_time.csv"), t.integrator_equal_time)
+    write_csv(os.path.join(out, "integrator_targets.csv"), t.integrator_targets)
 
 
 def make_plots(run, t, case_names, main_variant):
     """(PNG file names, None), or ([], a note for the report) without
     matplotlib -- then a failure of the run, except in fast mode."""
     try:
-        return plots(run.args.out, run.errors, t.times, t.memory, t.lookups, case_names,
-                     main_variant), None
+        import report_integrator
+        return (plots(run.args.out, t.volpath_errors, t.times, t.memory, t.lookups, case_names,
+                      main_variant)
+                + report_integrator.plots(run.args.out, run.errors, t.integrator_times,
+                                          t.integrator_targets, case_names, PLOT_DPI)), None
     except ImportError as e:
         plot_note = (f"matplotlib is not installed ({e}): no plots. "
                      "`pip install matplotlib==3.11.2` (scripts/install.sh pins it).")
@@ -493,7 +547,7 @@ def header_section(run, plot_note):
     cpu, ncpu, mem, vers, commit = machine_info()
     L = []
     w = L.append
-    w("# nanovdbvolume vs gridvolume: benchmark report\n")
+    w("# nanovdbvolume vs gridvolume, volpathlocal vs volpath: benchmark report\n")
     w(f"Generated by `{' '.join(['python3', 'bench/run.py'] + sys.argv[1:])}` "
       f"({a.mode} mode) on {run.started:%Y-%m-%d %H:%M %Z}, in {run.elapsed / 60:.1f} min. "
       "Methodology and caveats: [bench/README.md](../README.md). Benchmarks are "
@@ -504,8 +558,8 @@ def header_section(run, plot_note):
         w(f"- GPU: {gpu.device_name() or 'unknown (nvidia-smi not found)'}.")
     w(f"- Software: Python {platform.python_version()}, "
       + ", ".join(f"{k} {v}" for k, v in vers.items()) + ".")
-    w(f"- Plugin: `build/plugins/nanovdbvolume.so` as built at the time of the run; "
-      f"repository at {commit or 'unknown commit'}.")
+    w("- Plugins: `build/plugins/nanovdbvolume.so` (and `volpathlocal.so`) as built at the time "
+      f"of the run; repository at {commit or 'unknown commit'}.")
     L += settings_lines(run)
     for n in run.notes:
         w(f"- {n}")
@@ -527,6 +581,12 @@ def settings_lines(run):
       "albedo 0.9), `volpath` max_depth 64, constant sky + sun (as `scenes/cloud.xml`), "
       "a turntable of 8 sensors (35° fov, elevation 22°, distance 2.92). The same scene for "
       "both plugins; `gridvolume` reads the aligned dense `.vol` export of the same active box.")
+    integrators = getattr(a, "integrators", ["volpath"])
+    if "volpathlocal" in integrators:
+        w(f"- Integrators: {', '.join(integrators)}; `volpathlocal` (in place of `volpath`, "
+          f"same parameters) with nanovdbvolume on the cases "
+          f"{', '.join(a.local_cases) or 'none'} and every `--vdb`/`--nvdb` file, filters "
+          f"{', '.join(a.local_filters)} (section \"Integrator\").")
     w(f"- JIT variants: {a.res}² pixels per sensor, {a.spp} spp for the timings, "
       f"{a.runs} warm runs, sweep {a.sweep} spp. Scalar: {a.scalar_res}², {a.scalar_spp} spp, "
       f"sweep {a.scalar_sweep}. References: {getattr(a, 'ref_variant', 'llvm_ad_rgb')}, "
@@ -544,7 +604,8 @@ def settings_lines(run):
 
 def summary_section(t, main_variant):
     """Render time ratios per variant and filter; main_variant's memory and
-    error at equal time."""
+    error at equal time; the integrator comparison's targets."""
+    import report_integrator
     L = ["## Summary\n"]
     w = L.append
     for v in sorted({r["variant"] for r in t.times}):
@@ -566,6 +627,7 @@ def summary_section(t, main_variant):
             w(f"- {e['case']}, {e['variant']}, {e['filter']}: at equal time "
               f"({e['t_s']:.2f} s) {e['lower']} has the lower RMSE "
               f"(nano/grid {e['ratio']:.2f}; cost ratio {e['cost_ratio']:.2f}).")
+    L += report_integrator.summary_lines(t.integrator_times, t.integrator_targets)
     w("")
     return L
 
@@ -745,7 +807,9 @@ def files_section(pngs):
             "CSV: " + ", ".join(f"`{f}`" for f in ("cases.csv", "render_time.csv", "memory.csv",
                                                    "lookups.csv", "error_sweep.csv",
                                                    "error_equal_time.csv", "references.csv",
-                                                   "targets.csv")) + ". Plots: "
+                                                   "targets.csv", "integrator_render_time.csv",
+                                                   "integrator_error_equal_time.csv",
+                                                   "integrator_targets.csv")) + ". Plots: "
             + (", ".join(f"`{p}`" for p in pngs) or "none") + ".\n"]
 
 

@@ -1,15 +1,21 @@
-"""Benchmarks of nanovdbvolume against Mitsuba's dense gridvolume.
+"""Benchmarks of nanovdbvolume against Mitsuba's dense gridvolume, and of the
+volpathlocal integrator against volpath.
 
-    python3 bench/run.py                 # default run (~10 min on 2 cores) -> bench/results/
+    python3 bench/run.py                 # default run (~20-25 min on 2 cores) -> bench/results/
     python3 bench/run.py --full          # + the 934^3 cubes, larger images, more spp
     python3 bench/run.py --fast          # harness check (< 60 s): one tiny case -> bench/data/fast_results/
     python3 bench/run.py --gpu           # cuda_ad_rgb on a GPU -> bench/results/cuda/
     python3 bench/run.py --cases cloud sphere_fog --variants llvm_ad_rgb
     python3 bench/run.py --cases none --vdb smoke.vdb --nvdb other.nvdb:density
+    python3 bench/run.py --integrators volpath      # the plugin comparison alone
 
-Per case, variant, plugin and filter, a fresh worker process (bench/worker.py)
-measures the volume's memory, random-lookup throughput, the render time of
-an 8-sensor turntable at equal spp (cold + >= 5 warm runs) and an spp sweep.
+Per case, variant, integrator + plugin and filter, a fresh worker process
+(bench/worker.py) measures the volume's memory, random-lookup throughput,
+the render time of an 8-sensor turntable at equal spp (cold + >= 5 warm
+runs) and an spp sweep. The integrator axis: volpath with both plugins
+everywhere, and volpathlocal with nanovdbvolume on the integrator comparison's
+cases (--local-cases, every --vdb/--nvdb file) and filters (--local-filters),
+where the nanovdbvolume workers also count lookups and walk steps per path.
 Converged references are rendered on llvm_ad_rgb (cached in
 bench/data/refs/). Then CSV files, PNG plots and REPORT.md are written. See
 bench/README.md for the methodology. Exits non-zero when any measurement
@@ -36,32 +42,40 @@ import metrics  # noqa: E402
 
 PLUGINS = ["nanovdbvolume", "gridvolume"]
 FILTERS = ["trilinear", "nearest"]
+# volpath renders with every plugin; volpathlocal (src/integrators/) with
+# nanovdbvolume, whose tree it walks (with gridvolume it would be volpath).
+INTEGRATORS = ["volpath", "volpathlocal"]
+# The integrator comparison's generated cases (user files always take part)
+LOCAL_CASES = ["constant_300", "cloud", "sphere_fog_256", "cloudfield_400"]
 
 # Settings per mode. Scalar settings apply to scalar_* variants.
 MODES = {
     "fast": dict(cases=["cloud"], variants=["scalar_rgb", "llvm_ad_rgb"], res=16, spp=4, runs=3,
                  sweep=[1, 2, 4], ref_spp=32, ref_passes=2, lookups=1 << 16, scalar_lookups=2000,
                  scalar_res=16, scalar_spp=4, scalar_sweep=[1, 2, 4], lookup_runs=3,
-                 sweep_repeats=1, scalar_filters=["trilinear"],
-                 out=os.path.join(HERE, "data", "fast_results")),
+                 sweep_repeats=1, scalar_filters=["trilinear"], local_cases=["cloud"],
+                 integrators=INTEGRATORS, out=os.path.join(HERE, "data", "fast_results")),
     "default": dict(cases=cases_mod.DEFAULT_CASES, variants=["scalar_rgb", "llvm_ad_rgb"], res=32,
                     spp=16, runs=5, sweep=[1, 2, 4, 8, 16, 32], ref_spp=256, ref_passes=4,
                     lookups=1 << 22, scalar_lookups=1 << 14, scalar_res=32, scalar_spp=16,
                     scalar_sweep=[1, 2, 4, 8, 16, 32], lookup_runs=5, sweep_repeats=2,
+                    integrators=INTEGRATORS, local_cases=LOCAL_CASES,
                     out=os.path.join(HERE, "results")),
     # Full: the scalar variant renders fewer spp (8, sweep to 16) at the same
     # image size, so that it shares the references with llvm_ad_rgb.
     # GPU: cuda_ad_rgb alone, larger images (a GPU needs >= 10^6 paths per
-    # launch to fill), references on the GPU too.
+    # launch to fill), references on the GPU too; the integrator comparison
+    # only when asked for (--integrators volpath volpathlocal).
     "gpu": dict(cases=cases_mod.GPU_CASES, variants=["cuda_ad_rgb"], res=128, spp=64, runs=5,
                 sweep=[4, 16, 64, 256], ref_spp=1024, ref_passes=4, lookups=1 << 24,
                 scalar_lookups=0, scalar_res=0, scalar_spp=0, scalar_sweep=[], lookup_runs=5,
-                sweep_repeats=1, ref_variant="cuda_ad_rgb",
-                out=os.path.join(HERE, "results", "cuda")),
+                sweep_repeats=1, ref_variant="cuda_ad_rgb", integrators=["volpath"],
+                local_cases=LOCAL_CASES, out=os.path.join(HERE, "results", "cuda")),
     "full": dict(cases=cases_mod.FULL_CASES, variants=["scalar_rgb", "llvm_ad_rgb"], res=48,
                  spp=16, runs=5, sweep=[1, 2, 4, 8, 16, 32, 64], ref_spp=512, ref_passes=4,
                  lookups=1 << 22, scalar_lookups=1 << 14, scalar_res=48, scalar_spp=8,
                  scalar_sweep=[1, 2, 4, 8, 16], lookup_runs=5, sweep_repeats=2,
+                 integrators=INTEGRATORS, local_cases=LOCAL_CASES + ["constant_934"],
                  out=os.path.join(HERE, "results")),
 }
 
@@ -161,6 +175,20 @@ def settings_for(variant, a):
     return dict(res=a.res, spp=a.spp, sweep=a.sweep, lookups=a.lookups)
 
 
+def in_local_comparison(case, filt, a):
+    """Whether (case, filter) is a cell of the integrator comparison."""
+    return ("volpathlocal" in a.integrators and filt in a.local_filters
+            and (case.source != "generated" or case.name in a.local_cases))
+
+
+def configs_for(case, filt, a):
+    """The (integrator, plugin) pairs measured on (case, filter), in run order."""
+    configs = [("volpath", p) for p in a.plugins] if "volpath" in a.integrators else []
+    if in_local_comparison(case, filt, a):
+        configs.append(("volpathlocal", "nanovdbvolume"))
+    return configs
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -178,7 +206,17 @@ def main():
     ap.add_argument("--filters", nargs="+", choices=FILTERS, default=FILTERS)
     ap.add_argument("--scalar-filters", nargs="+", choices=FILTERS,
                     help="filters for scalar variants (default: --filters; fast: trilinear)")
-    ap.add_argument("--plugins", nargs="+", choices=PLUGINS, default=PLUGINS)
+    ap.add_argument("--plugins", nargs="+", choices=PLUGINS, default=PLUGINS,
+                    help="volume plugins rendered with volpath")
+    ap.add_argument("--integrators", nargs="+", choices=INTEGRATORS,
+                    help="volpath: the plugins in --plugins; volpathlocal: nanovdbvolume on the "
+                    "--local-cases and user files (default both; gpu: volpath)")
+    ap.add_argument("--local-cases", nargs="+", metavar="CASE",
+                    help="generated cases of the integrator comparison ('all', 'none'; default "
+                    "%s; full: + constant_934; fast: cloud). --vdb/--nvdb files always take "
+                    "part" % " ".join(LOCAL_CASES))
+    ap.add_argument("--local-filters", nargs="+", choices=FILTERS, default=["trilinear"],
+                    help="filters of the integrator comparison (default trilinear)")
     ap.add_argument("--res", type=int, help="image width = height (JIT variants)")
     ap.add_argument("--spp", type=int, help="spp of the timed renders (JIT variants)")
     ap.add_argument("--sweep", type=int, nargs="+", help="spp sweep (JIT variants)")
@@ -212,6 +250,14 @@ def main():
     for k, v in MODES[a.mode].items():
         if getattr(a, k, None) is None:
             setattr(a, k, v)
+    if a.local_cases == ["none"]:
+        a.local_cases = []
+    elif a.local_cases == ["all"]:
+        a.local_cases = list(cases_mod.GENERATED)
+    for name in a.local_cases:
+        if name not in cases_mod.GENERATED:
+            sys.exit(f"unknown case {name!r} in --local-cases; known: "
+                     f"{', '.join(cases_mod.GENERATED)}")
     if a.scalar_filters is None:
         a.scalar_filters = a.filters
     if a.cases == ["none"]:
@@ -220,12 +266,16 @@ def main():
     a.data = os.path.abspath(a.data)
     a.out = os.path.abspath(a.out)
     a.ref_variant = a.ref_variant or "llvm_ad_rgb"
-    if not os.path.exists(os.path.join(a.build, "plugins", "nanovdbvolume.so")):
-        sys.exit(f"{a.build}/plugins/nanovdbvolume.so not found: build the project first")
+    # The project's plugins this run loads, and their builds (a rebuild during
+    # the run is reported)
+    sos = [os.path.join(a.build, "plugins", f"{p}.so") for p in
+           ["nanovdbvolume"] + (["volpathlocal"] if "volpathlocal" in a.integrators else [])]
+    for so in sos:
+        if not os.path.exists(so):
+            sys.exit(f"{so} not found: build the project first")
     t_start = time.perf_counter()
     started = datetime.datetime.now().astimezone()
-    so = os.path.join(a.build, "plugins", "nanovdbvolume.so")
-    so_stat = (os.stat(so).st_size, os.stat(so).st_mtime_ns)
+    so_stats = {so: (os.stat(so).st_size, os.stat(so).st_mtime_ns) for so in sos}
 
     notes = []
     cuda_requested = [v for v in a.variants if v.startswith("cuda")]
@@ -237,7 +287,7 @@ def main():
         a.variants.append("cuda_ad_rgb")
 
     log(f"== bench/run.py ({a.mode}): cases {a.cases + a.vdb + a.nvdb}, variants {a.variants}, "
-        f"filters {a.filters}")
+        f"filters {a.filters}, integrators {a.integrators}")
     log("== preparing cases")
     case_list = []
     for name in a.cases:
@@ -264,7 +314,8 @@ def main():
     refs_info = []
     def variants_for(filt):
         return [v for v in a.variants if not v.startswith("scalar") or filt in a.scalar_filters]
-    total = len(case_list) * len(a.plugins) * sum(len(variants_for(f)) for f in a.filters)
+    total = sum(len(variants_for(f)) * len(configs_for(c, f, a))
+                for c in case_list for f in a.filters)
     done = 0
     for c in case_list:
         for filt in a.filters:
@@ -274,7 +325,9 @@ def main():
             ref_cache = {}
             for variant in variants_for(filt):
                 st = settings_for(variant, a)
-                for plugin in a.plugins:
+                for integrator, plugin in configs_for(c, filt, a):
+                    # volpathlocal's expectation is volpath's: it is compared
+                    # with volpath's reference of its plugin
                     ref_plugin = "gridvolume" if filt == "nearest" else plugin
                     rk = (ref_plugin, st["res"])
                     if rk not in ref_cache:
@@ -282,19 +335,26 @@ def main():
                             f"{a.ref_spp} spp")
                         ref_cache[rk] = reference(runner, c, ref_plugin, filt, st["res"], a)
                     done += 1
-                    tag = f"{c.name}__{variant}__{plugin}__{filt}".replace(":", "_").replace("/", "_")
+                    config = plugin if integrator == "volpath" else f"{integrator}_{plugin}"
+                    tag = f"{c.name}__{variant}__{config}__{filt}".replace(":", "_").replace("/", "_")
                     log(f"[{done}/{total}] {tag}  (elapsed {time.perf_counter() - t_start:.0f} s, "
                         f"load {os.getloadavg()[0]:.2f})")
                     spec = {"mode": "measure", "variant": variant, "plugin": plugin,
+                            "integrator": integrator,
                             "volume": c.nvdb if plugin == "nanovdbvolume" else c.vol,
                             "grid": c.grid, "filter": filt, "res": st["res"], "spp": st["spp"],
-                            "runs": a.runs, "sweep": st["sweep"], "lookups": st["lookups"],
+                            "runs": a.runs, "sweep": st["sweep"],
+                            # the volume's lookups do not depend on the integrator
+                            "lookups": st["lookups"] if integrator == "volpath" else 0,
                             "sweep_repeats": a.sweep_repeats,
-                            "lookup_runs": a.lookup_runs}
+                            "lookup_runs": a.lookup_runs,
+                            "count_lookups": plugin == "nanovdbvolume"
+                            and in_local_comparison(c, filt, a)}
                     out, npz = runner.worker(spec, tag, a.timeout)
                     if out is None:
                         continue
-                    out.update(case=c.name, variant=variant, plugin=plugin, filter=filt)
+                    out.update(case=c.name, variant=variant, plugin=plugin, filter=filt,
+                               integrator=integrator)
                     results.append(out)
                     ref = ref_cache[rk]
                     if ref is None:
@@ -303,13 +363,17 @@ def main():
                         img = npz[f"sweep_{pt['spp']}"]
                         raw, corr = metrics.rmse(img, ref["mean"], ref["var_of_mean"])
                         errors.append({"case": c.name, "variant": variant, "plugin": plugin,
-                                       "filter": filt, "res": st["res"], "spp": pt["spp"],
+                                       "integrator": integrator, "filter": filt,
+                                       "res": st["res"], "spp": pt["spp"],
                                        "time_s": pt["time_s"], "rmse": corr, "rmse_raw": raw,
                                        "ssim": metrics.ssim(img, ref["mean"]),
                                        "reference": ref_plugin})
                     log(f"      warm median {out['warm_median_s']:.3f} s, first "
                         f"{out['first_s']:.3f} s, lookups {out.get('lookups_per_s', 0):.3g}/s, "
-                        f"worker {out['worker_wall_s']:.1f} s")
+                        + (f"per path {out['counts']['lookup_count'] / out['count_paths']:.2f} "
+                           f"lookups, {out['counts']['walk_step_count'] / out['count_paths']:.2f}"
+                           " walk steps, " if "counts" in out else "")
+                        + f"worker {out['worker_wall_s']:.1f} s")
             # Trilinear: how far apart the two plugins' references are (the
             # border convention), against the references' own noise.
             for (rp, res), ref in ref_cache.items():
@@ -334,13 +398,15 @@ def main():
                                       "noise_rmse": noise, "rmse_between": d})
 
     elapsed = time.perf_counter() - t_start
-    so_mtime = datetime.datetime.fromtimestamp(so_stat[1] / 1e9).astimezone()
-    if (os.stat(so).st_size, os.stat(so).st_mtime_ns) != so_stat:
-        notes.append("**build/plugins/nanovdbvolume.so was rebuilt during this run**: "
-                     "measurements before and after may mix two builds.")
-    else:
-        notes.append(f"nanovdbvolume.so: built {so_mtime:%Y-%m-%d %H:%M:%S %Z}, "
-                     f"{so_stat[0]:,} B, unchanged during the run.")
+    for so, (size, mtime) in so_stats.items():
+        name = os.path.basename(so)
+        if (os.stat(so).st_size, os.stat(so).st_mtime_ns) != (size, mtime):
+            notes.append(f"**build/plugins/{name} was rebuilt during this run**: "
+                         "measurements before and after may mix two builds.")
+        else:
+            built = datetime.datetime.fromtimestamp(mtime / 1e9).astimezone()
+            notes.append(f"{name}: built {built:%Y-%m-%d %H:%M:%S %Z}, {size:,} B, unchanged "
+                         "during the run.")
     import report
     save(a, case_list, results, errors, refs_info, notes, runner.failures, started, elapsed,
          has_gpu)

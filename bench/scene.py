@@ -1,9 +1,13 @@
 """The benchmark scene: the volume in a unit cube (null BSDF, heterogeneous
 medium, volpath), seen by a turntable of 8 sensors at a fixed elevation.
 
-The lighting, medium and integrator are those of scenes/cloud.xml (via
-scenes/render_cloud.py); only the sensors differ. Both plugins get the same
-scene: only the `sigma_t` volume's plugin and file differ.
+The lighting and medium are those of scenes/cloud.xml (via
+scenes/render_cloud.py): a scattering medium (albedo 0.9, scale 40), a
+constant sky and a directional sun, max_depth 64; only the sensors differ.
+Both plugins get the same scene: only the `sigma_t` volume's plugin and file
+differ. The integrator is `volpath` (Mitsuba's own; scenes/cloud.xml now
+defaults to `volpathlocal`) unless the caller asks for `volpathlocal` (the
+integrator comparison), with the same parameters.
 """
 import math
 import os
@@ -23,10 +27,13 @@ RADIUS = 2.92
 ELEVATION_DEG = 22.0
 
 
-def volume_dict(plugin, filename, filter_type, grid=""):
+def volume_dict(plugin, filename, filter_type, grid="", count_lookups=False):
+    """count_lookups (nanovdbvolume only): count lookups and walk steps."""
     d = {"type": plugin, "filename": filename, "filter_type": filter_type}
     if grid and plugin == "nanovdbvolume":
         d["grid"] = grid
+    if count_lookups:
+        d["count_lookups"] = True
     return d
 
 
@@ -47,9 +54,11 @@ def sensor_dict(i, res, spp):
     }
 
 
-def turntable_scene(volume, res, spp):
-    """`volume`: a loaded mi.Volume (or a dict). Returns the scene dict."""
-    desc = cloud_scene("unused", spp=spp, res=res)
+def turntable_scene(volume, res, spp, integrator="volpath"):
+    """`volume`: a loaded mi.Volume (or a dict); `integrator`: `volpath` or
+    `volpathlocal` (a drop-in replacement: same parameters). Returns the
+    scene dict."""
+    desc = cloud_scene("unused", spp=spp, res=res, integrator=integrator)
     desc["cube"]["interior"]["sigma_t"] = volume
     del desc["sensor"]
     for i in range(N_SENSORS):

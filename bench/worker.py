@@ -3,9 +3,13 @@
     python3 bench/worker.py SPEC.json
 
 SPEC.json holds {"mode": "measure" | "reference" | "dense", ...} (see
-run.py). A fresh process per (case, variant, plugin, filter) makes the peak
-RSS meaningful and keeps Dr.Jit's allocator statistics to one volume. The
-result is written to spec["out_json"] (and images to spec["out_npz"]).
+run.py). A fresh process per (case, variant, integrator, plugin, filter)
+makes the peak RSS meaningful and keeps Dr.Jit's allocator statistics to one
+volume. The result is written to spec["out_json"] (and images to
+spec["out_npz"]).
+spec["integrator"] (volpath, volpathlocal) picks the scene's integrator;
+spec["count_lookups"] adds lookups and walk steps per camera path, counted
+on a render of their own after the timed ones.
 
 Memory of the volume is measured across mi.load_dict() of the volume alone:
 - jit_storage: Dr.Jit's own accounting of the bytes held by evaluated JIT
@@ -162,6 +166,30 @@ def render_turntable(mi, dr, scene, spp, seed):
     return t, np.stack([np.asarray(im, dtype=np.float32)[..., :3] for im in imgs])
 
 
+def paths_and_counts(mi, dr, spec):
+    """Lookups and majorant-walk steps, counted on a render of their own:
+    count_lookups adds an atomic add per lookup and walk step, so the timed
+    renders never count. A fresh volume with count_lookups, one turntable at
+    the timing spp (seed 0). Returns every `NAME_count = N,` line of
+    str(volume) (lookup_count, walk_step_count and the steps by cell) and the
+    camera paths of that render (pixels x spp x sensors), to divide them by.
+    nanovdbvolume only (gridvolume cannot count)."""
+    from scene import turntable_scene, volume_dict
+    vol = mi.load_dict(volume_dict(spec["plugin"], spec["volume"], spec["filter"],
+                                   spec.get("grid", ""), count_lookups=True))
+    scene = mi.load_dict(turntable_scene(vol, spec["res"], spec["spp"],
+                                         spec.get("integrator", "volpath")))
+    render_turntable(mi, dr, scene, spec["spp"], 0)
+    text = str(vol)
+    counts = {k: int(v) for k, v in re.findall(r"^\s*(\w+_count) = (\d+),", text, re.M)}
+    for key in ("lookup_count", "walk_step_count"):
+        if key not in counts:
+            raise SystemExit(f"{spec['volume']}: no '{key}' in str(volume) with count_lookups "
+                             f"(a plugin build without counting?):\n{text}")
+    return {"counts": counts,
+            "count_paths": spec["res"] ** 2 * spec["spp"] * len(scene.sensors())}
+
+
 def jit_compile_ms(dr):
     hist = dr.kernel_history()
     codegen = backend = 0.0
@@ -201,7 +229,8 @@ def main():
     if spec["mode"] == "measure" and spec.get("lookups", 0) > 0:
         out.update(lookup_throughput(mi, dr, vol, spec["lookups"], spec.get("lookup_runs", 5)))
 
-    scene = mi.load_dict(turntable_scene(vol, spec["res"], spec["spp"]))
+    out["integrator"] = spec.get("integrator", "volpath")
+    scene = mi.load_dict(turntable_scene(vol, spec["res"], spec["spp"], out["integrator"]))
     images = {}
     if spec["mode"] == "reference":
         # Passes with independent seeds: their mean is the reference, and their
@@ -248,6 +277,8 @@ def main():
             images[f"sweep_{s}"] = im
             sweep.append({"spp": s, "time_s": min(ts), "times_s": ts})
         out["sweep"] = sweep
+        if spec.get("count_lookups"):
+            out.update(paths_and_counts(mi, dr, spec))
     out["peak_rss_end"] = peak_rss_bytes()
     out["loadavg_end"] = os.getloadavg()
     if images:

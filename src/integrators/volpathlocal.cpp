@@ -265,7 +265,8 @@ private:
             FindParameters p;
             const_cast<Medium *>(m)->traverse(&p);
             const Majorants *v = p.sigma_t ? dynamic_cast<const Majorants *>(p.sigma_t) : nullptr;
-            if (!v || !p.has_scale)
+            // (scale 0: nothing to track, and no collision either way)
+            if (!v || !p.has_scale || !(p.scale > 0.f))
                 continue;
             // A volume of (nearly) one density: the walk would cost its steps
             // and save no null collisions; track it as volpath does
