@@ -1,0 +1,627 @@
+"""
+The volpathlocal integrator (src/integrators/volpathlocal.cpp) against
+independent references: analytic transmittance, and Mitsuba's own volpath
+on the same scene.
+
+volpathlocal must have volpath's expected value on every scene; it draws
+other random numbers (delta and ratio tracking against per-node majorants
+instead of one global majorant), so the images are compared statistically.
+The test, as the issue states it: render each integrator with two seeds
+(volpath: 0 and 1, volpathlocal: 2 and 3), through a box reconstruction
+filter so that pixels are independent, and per channel form
+
+    z = sum_p (mean_a(p) - mean_b(p)) / sqrt(sum_p (var_a(p) / 2 + var_b(p) / 2))
+
+where mean_* and var_* (ddof=1) are over the two seeds of one side. Summed
+over ~600 pixels, z is standard normal when the expectations agree (the
+variance estimate has that many degrees of freedom: ~6 % relative error),
+and |z| < 5 is asserted: a false alarm probability of 5.7e-7 per check
+(two-sided normal tail), below 1e-6; the ~240 checks of this file (z-tests
+and analytic means together) raise a false alarm about once in 7000 runs.
+Per-pixel standard deviations are floored at 1e-6 of the pixel value (see
+ROUNDING), for pixels that neither side renders with noise.
+
+volpathlocal falls back to volpath's tracking for media whose local
+majorants would save little (max_majorant_ratio); the tests force the walk
+(TRACK_ALWAYS) and check from the integrator's to_string() that it tracks
+the media it should, so that a test cannot pass by falling back.
+
+Analytic references: an orthographic camera looks along +z through a box of
+medium with albedo 0 in front of a uniform environment of radiance 1, so
+every pixel is exp(-tau) with tau = scale * density * length (constant
+densities, nearest lookups), as in tests/test_stability.py. Delta tracking
+makes each sample 0 or 1 (binomial); shadow rays (ratio tracking) are
+checked through a plane lit by a sun behind the medium.
+"""
+
+import math
+import re
+
+import numpy as np
+import pytest
+import drjit as dr
+import mitsuba as mi
+
+from conftest import _setup_variant, load_dense, load_nvdb
+from conftest import make_stability_grid as make_stab
+
+
+def T4():
+    """An identity ScalarTransform4f of the current variant."""
+    return mi.ScalarTransform4f()
+
+
+# volpathlocal tracks a nanovdbvolume medium through the walk only where its
+# local majorants average at most max_majorant_ratio (default 0.75) of the
+# global one, and otherwise as volpath does. The tests force the walk on
+# every grid (1.0: always), so that what they check is the tracking; test17
+# checks the default's choice.
+TRACK_ALWAYS = {"max_majorant_ratio": 1.0}
+
+# |z| below this for every channel: at most a 1e-6 false-alarm rate per check
+# (P(|N(0,1)| > 5) = 5.7e-7)
+Z_MAX = 5.0
+
+
+# ---------------------------------------------------------------------------
+#  Helpers: scenes, renders, the z-test
+# ---------------------------------------------------------------------------
+
+def pixel_format():
+    return "luminance" if mi.is_monochromatic else "rgb"
+
+
+def film(size):
+    return {"type": "hdrfilm", "width": size, "height": size,
+            "rfilter": {"type": "box"}, "pixel_format": pixel_format()}
+
+
+def medium(volume, scale, albedo=(0.9, 0.75, 0.6), g=0.4):
+    """A heterogeneous medium on `volume`: RGB-varying albedo, HG phase."""
+    return {"type": "heterogeneous", "sigma_t": volume, "scale": scale,
+            "albedo": {"type": "rgb", "value": list(albedo)},
+            "phase": {"type": "hg", "g": g}}
+
+
+def unit_cube(interior, bsdf=None, to_world=None):
+    """The cube [0, 1]^3 (or `to_world` of [-1, 1]^3) holding `interior`."""
+    return {"type": "cube",
+            "to_world": to_world if to_world is not None
+            else T4().translate([0.5, 0.5, 0.5]).scale(0.5),
+            "bsdf": bsdf or {"type": "null"},
+            "interior": interior}
+
+
+def sky_and_sun_scene(integrator, shapes, size=24, spp=64, max_depth=64, target=(0.5, 0.5, 0.5),
+                      distance=1.0, **integrator_args):
+    """A perspective view of `shapes` (the cube [0, 1]^3 fills most of the
+    image) under a blue sky and a sun."""
+    t = np.array(target, dtype=float)
+    origin = t + distance * np.array([1.7, 1.1, 2.1])
+    scene = {
+        "type": "scene",
+        "integrator": {"type": integrator, "max_depth": max_depth, **integrator_args},
+        "sensor": {
+            "type": "perspective", "fov": 38,
+            "to_world": T4().look_at(origin=origin.tolist(), target=t.tolist(), up=[0, 1, 0]),
+            "film": film(size),
+            "sampler": {"type": "independent", "sample_count": spp},
+        },
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.6, 0.8]}},
+        "sun": {"type": "directional", "direction": [-1.0, -1.3, -0.4],
+                "irradiance": {"type": "rgb", "value": [3.0, 2.7, 2.3]}},
+    }
+    scene.update(shapes)
+    return scene
+
+
+def render(scene_dict, seeds):
+    """Renders of one loaded scene, one per seed: (len(seeds), H, W, C),
+    and the scene."""
+    scene = mi.load_dict(scene_dict)
+    imgs = np.stack([np.array(mi.render(scene, seed=s), dtype=np.float64) for s in seeds])
+    assert np.all(np.isfinite(imgs)), "NaN or Inf in a pixel"
+    return imgs, scene
+
+
+def tracked_media(scene):
+    """How many media volpathlocal tracks through the walk in `scene` (its
+    to_string(), after a render has prepared it)."""
+    return int(re.search(r"tracked media = (\d+)", str(scene.integrator())).group(1))
+
+
+# Float32 rounding of a pixel's accumulated radiance: a few ulps (6e-8
+# relative each). Per-pixel standard deviations are floored at this much of
+# the pixel value, so that pixels without noise on either side (sky seen
+# through empty space) that differ by rounding alone do not read as a bias.
+ROUNDING = 1e-6
+
+
+def z_scores(a, b):
+    """Per-channel z of the mean difference of two sides, each (2, H, W, C):
+    two seeds of one integrator (see the module docstring)."""
+    def floored_var(x):
+        return np.maximum(x.var(axis=0, ddof=1), (ROUNDING * x.mean(axis=0)) ** 2)
+    diff = (a.mean(axis=0) - b.mean(axis=0)).sum(axis=(0, 1))
+    var = (floored_var(a) / 2 + floored_var(b) / 2).sum(axis=(0, 1))
+    # Both sides noiseless (e.g. an empty medium under a constant sky in
+    # RGB): the images must then be equal
+    return np.where(var > 0, diff / np.sqrt(np.where(var > 0, var, 1.0)),
+                    np.where(diff == 0, 0.0, np.inf))
+
+
+def assert_same_expectation(make_scene, spp=64, local_args=None, tracked=1):
+    """Renders make_scene(integrator, spp=..., **args) with volpath (seeds
+    0, 1) and volpathlocal (seeds 2, 3; TRACK_ALWAYS and `local_args`),
+    checks that volpathlocal tracks `tracked` media through the walk, and
+    asserts |z| < Z_MAX for every channel. Returns (z, volpath images,
+    volpathlocal images)."""
+    a, _ = render(make_scene("volpath", spp=spp), seeds=(0, 1))
+    b, scene = render(make_scene("volpathlocal", spp=spp, **TRACK_ALWAYS, **(local_args or {})),
+                      seeds=(2, 3))
+    assert tracked_media(scene) == tracked
+    z = z_scores(a, b)
+    print(f"{mi.variant()}: z = {np.round(z, 2)}, means {a.mean(axis=(0, 1, 2))} "
+          f"vs {b.mean(axis=(0, 1, 2))}")
+    assert np.all(np.abs(z) < Z_MAX), (z, a.mean(axis=(0, 1, 2)), b.mean(axis=(0, 1, 2)))
+    return z, a, b
+
+
+def transmittance_scene(integrator, volume, scale=1.0, size=16, spp=64,
+                        box=((0, 0, 0), (1, 1, 1)), view=(0.1, 0.9), shadow=False,
+                        tracked=1, **integrator_args):
+    """Orthographic view along +z through the medium box `box` (world
+    space), albedo 0. `view`: the part of the box's x/y extent the film
+    covers.
+
+    shadow=False: environment radiance 1 behind the box; each pixel
+    estimates T = exp(-tau) (delta tracking on the camera ray).
+    shadow=True: no environment; a white diffuse plane behind the box
+    faces the camera, lit through the box by a sun shining along +z with
+    irradiance pi, so its radiance is T; the camera ray crosses the same
+    column (delta tracking) and the shadow ray crosses it back (ratio
+    tracking): each pixel estimates T^2.
+    volpathlocal must track `tracked` media through the walk (TRACK_ALWAYS
+    is added to its arguments)."""
+    if integrator == "volpathlocal":
+        integrator_args = {**TRACK_ALWAYS, **integrator_args}
+    lo, hi = np.array(box[0], dtype=float), np.array(box[1], dtype=float)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    cover = (view[1] - view[0]) / 2
+    cx, cy = lo[:2] + (hi[:2] - lo[:2]) * (view[0] + view[1]) / 2
+    scene = {
+        "type": "scene",
+        "integrator": {"type": integrator, "max_depth": 2 if shadow else 64, **integrator_args},
+        "sensor": {
+            "type": "orthographic",
+            "to_world": T4().look_at(
+                origin=[cx, cy, lo[2] - 1.0 - half[2]], target=[cx, cy, centre[2]],
+                up=[0, 1, 0]) @ T4().scale([cover * 2 * half[0], cover * 2 * half[1], 1]),
+            "film": film(size),
+            "sampler": {"type": "independent", "sample_count": spp},
+        },
+        "cube": unit_cube({"type": "heterogeneous", "sigma_t": volume, "albedo": 0.0,
+                           "scale": scale},
+                          to_world=T4().translate(centre.tolist()).scale(half.tolist())),
+    }
+    if shadow:
+        scene["sun"] = {"type": "directional", "direction": [0, 0, 1], "irradiance": math.pi}
+        # rectangle: [-1, 1]^2 at z = 0, normal +z; turned to face -z
+        scene["plane"] = {"type": "rectangle",
+                          "to_world": T4().translate([centre[0], centre[1], hi[2] + 0.5 * half[2]])
+                          @ T4().rotate([1, 0, 0], 180) @ T4().scale([3 * half[0], 3 * half[1], 1]),
+                          "bsdf": {"type": "diffuse", "reflectance": 1.0}}
+    else:
+        scene["sky"] = {"type": "constant", "radiance": 1.0}
+    scene = mi.load_dict(scene)
+    img = np.array(mi.render(scene), dtype=np.float64)[..., 0]
+    assert np.all(np.isfinite(img)), "NaN or Inf in a pixel"
+    if integrator == "volpathlocal":
+        assert tracked_media(scene) == tracked
+    return img
+
+
+def spp_for_analytic():
+    # (size, spp): 32768 samples, so that 5 binomial standard errors (at
+    # most 0.014) are well below the shift of a 10 % majorant error in T
+    # (exp(-0.9 tau) - exp(-tau): 0.03 ... 0.04 for tau = 0.5 ... 2)
+    return (16, 128)
+
+
+def assert_mean_close(img, spp, expect, std_per_sample, what=""):
+    """The pixel mean against `expect`, 5 standard errors of the mean of
+    img.size * spp independent samples of standard deviation
+    `std_per_sample` (at least 1e-6: float rounding of T itself)."""
+    n = img.size * spp
+    tol = max(5 * std_per_sample / np.sqrt(n), 1e-6)
+    assert abs(img.mean() - expect) <= tol, (what, img.mean(), expect, tol)
+
+
+def binomial_std(t):
+    return np.sqrt(max(t * (1 - t), 0.0))
+
+
+def parse_counts(volume):
+    s = str(volume)
+    return (int(re.search(r"lookup_count = (\d+)", s).group(1)),
+            int(re.search(r"walk_step_count = (\d+)", s).group(1)))
+
+
+# ---------------------------------------------------------------------------
+#  Analytic transmittance (albedo 0): volpathlocal alone
+# ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("density", [1e-6, 1.0, 1e4, 1e6])
+def test01_density_scales_analytic_transmittance(variants_rgb, tmp_path, density):
+    # A constant 8^3 box of `density`, nearest: constant up to the faces,
+    # so the local majorant equals the density (tight: every tentative
+    # collision is real, and a majorant below it shows as a bias). Along +z
+    # the ray crosses length 1:
+    #  scale 1:         T = exp(-density): 1 - 1e-6 ... exp(-1e6) = 0
+    #  scale 1/density: T = exp(-1) whatever the density
+    # Each sample is 0 or 1: 5 binomial standard errors.
+    nvdb, _, _ = make_stab(tmp_path, "c", "--value", density, dense=False)
+    vol = load_nvdb(nvdb, filter_type="nearest")
+    size, spp = spp_for_analytic()
+    for scale in [1.0, 1.0 / density]:
+        for coarse in [0.0, 2.0]:
+            img = transmittance_scene("volpathlocal", vol, scale=scale, size=size, spp=spp,
+                                      coarse_optical_depth=coarse)
+            expect = np.exp(-float(np.float32(density)) * scale)
+            assert_mean_close(img, spp, expect, binomial_std(expect), (scale, coarse))
+            assert np.all((img >= 0) & (img <= 1))
+
+
+STAB_CASES = {
+    # name: (nvdb_make_stability_grid options, filter, T)
+    "far_1e6": (["--min", 1_000_000, -1_000_000, 5, "--max", 1_000_007, -999_993, 12,
+                 "--value", 1.5], "nearest", np.exp(-1.5)),
+    "far_2e9": (["--min", 2_000_000_000, -2_000_000_000, 2_000_000_000,
+                 "--max", 2_000_000_015, -1_999_999_985, 2_000_000_015, "--value", 1.5],
+                "nearest", np.exp(-1.5)),
+    # (--fill random with lo = hi: a constant; OpenVDB's denseFill, which
+    # --value uses, never returns on a box that ends at INT32_MAX)
+    "int32_extremes": (["--min", 2_147_483_647 - 15, -2_147_483_648, 2_147_483_647 - 15,
+                        "--max", 2_147_483_647, -2_147_483_648 + 15, 2_147_483_647,
+                        "--fill", "random", "--lo", 0.5, "--hi", 0.5], "nearest", np.exp(-0.5)),
+    # Tiles only: one 4096^3 root tile, and two root tiles at negative
+    # coordinates (no node below the root), nearest and trilinear (where
+    # trilinear blends into the background, in the outer half voxels of the
+    # 4096 along z, tau drops by 1e-4: far below the tolerance)
+    "root_tile": (["--min", 0, 0, 0, "--max", 4095, 4095, 4095, "--value", 1.5, "--tiles"],
+                  "nearest", np.exp(-1.5)),
+    "root_tiles_negative_trilinear": (["--min", -8192, 4096, -4096, "--max", -1, 8191, -1,
+                                       "--value", 1.5, "--tiles"], "trilinear", np.exp(-1.5)),
+    # Upper- and lower-node tiles: [-128, 127] x [0, 127] x [0, 135]
+    "upper_lower_tiles": (["--min", -128, 0, 0, "--max", 127, 127, 135, "--value", 0.75,
+                           "--tiles"], "nearest", np.exp(-0.75)),
+    "single_voxel": (["--min", -3, 7, 100, "--max", -3, 7, 100, "--value", 2.0],
+                     "nearest", np.exp(-2.0)),
+    # Background 0.25 around the box: inside the unit cube only the voxels
+    "background_around_box": (["--min", 0, 0, 0, "--max", 15, 15, 15, "--value", 2.0,
+                               "--background", 0.25], "nearest", np.exp(-2.0)),
+    # An empty grid of background 0.5 is a constant medium of 0.5
+    "empty_background_0.5": (["--fill", "none", "--background", 0.5], "trilinear",
+                             np.exp(-0.5)),
+}
+
+
+@pytest.mark.parametrize("case", list(STAB_CASES))
+def test02_extreme_grids_analytic_transmittance(variants_rgb, tmp_path, case):
+    # Grids far from the origin (|ijk| ~ 1e6, 2e9, the int32 extremes),
+    # made only of tiles, a single voxel, a non-zero background: constant
+    # density over the unit cube, so T = exp(-value). Binomial, 5 standard
+    # errors; with coarse_optical_depth 0 (every node walked) and the
+    # default 2.
+    args, filter_type, expect = STAB_CASES[case]
+    nvdb, _, _ = make_stab(tmp_path, case, *args, dense=False)
+    vol = load_nvdb(nvdb, filter_type=filter_type)
+    size, spp = spp_for_analytic()
+    for coarse in [0.0, 2.0]:
+        img = transmittance_scene("volpathlocal", vol, size=size, spp=spp,
+                                  coarse_optical_depth=coarse)
+        assert_mean_close(img, spp, expect, binomial_std(expect), coarse)
+        assert np.all((img >= 0) & (img <= 1))
+
+
+def test03_empty_grid_is_no_medium(variants_rgb, tmp_path):
+    # Background 0, no voxels: every pixel is exactly the environment, 1
+    # (no collision can happen: a zero majorant everywhere), never NaN;
+    # also through the plane and shadow rays.
+    e, _, _ = make_stab(tmp_path, "empty", "--fill", "none", dense=False)
+    for use_grid_transform in [False, True]:
+        vol = load_nvdb(e, use_grid_transform=use_grid_transform)
+        for coarse in [0.0, 2.0]:
+            img = transmittance_scene("volpathlocal", vol, size=8, spp=4,
+                                      coarse_optical_depth=coarse)
+            assert np.all(img == 1.0)
+            img = transmittance_scene("volpathlocal", vol, size=8, spp=4, shadow=True,
+                                      coarse_optical_depth=coarse)
+            np.testing.assert_allclose(img, 1.0, rtol=1e-5)
+
+
+def ratio_tracking_second_moment(mu, sigma, length):
+    """E[W^2] of ratio tracking through a constant medium sigma against a
+    constant majorant mu: W = (1 - sigma / mu)^N with N ~ Poisson(mu * L),
+    so E[W^2] = exp(-mu L + mu L (1 - sigma / mu)^2)."""
+    return np.exp(-mu * length + mu * length * (1 - sigma / mu) ** 2)
+
+
+@pytest.mark.parametrize("hot", [None, 4.0], ids=["tight", "loose"])
+def test04_shadow_rays_ratio_tracking_analytic(variants_rgb, tmp_path, hot):
+    # Density 1 over the 8^3 box (nearest), scale 1. The camera ray (delta
+    # tracking) and the shadow ray to the sun (ratio tracking) both cross
+    # one column of length 1, so each pixel estimates T^2 = exp(-2).
+    # tight: majorant 1 = density; ratio tracking's weight is 0 at the
+    #        first collision (binomial).
+    # loose: voxel (0, 0, 0) holds 4, which makes the leaf's majorant 4
+    #        (the leaf, the whole box, is the walk's finest cell); the film
+    #        covers x, y in [0.2, 0.9], away from that column, so every ray
+    #        sees density 1 against majorant 4 and ratio tracking weighs
+    #        each null collision by 3/4.
+    # Per sample X = B * W (B ~ Bernoulli(T), W the ratio estimate):
+    # E[X^2] = T * E[W^2]; 5 standard errors.
+    args = ["--value", 1.0] + (["--set", 0, 0, 0, hot] if hot else [])
+    nvdb, _, _ = make_stab(tmp_path, "ratio", *args, dense=False)
+    vol = load_nvdb(nvdb, filter_type="nearest")
+    size, spp = spp_for_analytic()
+    mu = hot or 1.0
+    t = np.exp(-1.0)
+    std = np.sqrt(t * ratio_tracking_second_moment(mu, 1.0, 1.0) - t ** 4)
+    for coarse in [0.0, 2.0]:
+        img = transmittance_scene("volpathlocal", vol, size=size, spp=spp, view=(0.2, 0.9),
+                                  shadow=True, coarse_optical_depth=coarse)
+        assert_mean_close(img, spp, t * t, std, coarse)
+        assert np.all(img >= 0)
+        # Samples are 0 or 1 where the majorant is tight; fractional ratio
+        # tracking weights show in pixel sums that are not integers
+        fractional = np.abs(img * spp - np.round(img * spp)) > 1e-3
+        assert fractional.any() == bool(hot)
+
+
+# ---------------------------------------------------------------------------
+#  Scattering: volpathlocal vs volpath (z-test)
+# ---------------------------------------------------------------------------
+
+CLOUD_SCALE = {"noisy_cloud": 8.0, "fog_sphere": 6.0}
+
+
+def cloud_scene(volume, scale):
+    return lambda integrator, **kw: sky_and_sun_scene(
+        integrator, {"cube": unit_cube(medium(volume, scale))}, **kw)
+
+
+@pytest.mark.parametrize("coarse", [0.0, 2.0, 100.0])
+@pytest.mark.parametrize("name", ["noisy_cloud", "fog_sphere"])
+def test05_scattering_matches_volpath(variants_rgb, make_grid, name, coarse):
+    # Albedo (0.9, 0.75, 0.6), HG 0.4, sky and sun, max_depth 64: multiple
+    # scattering, emitter sampling through the medium (ratio tracking) and
+    # MIS. Every leaf walked (coarse 0), the default (2: at these densities
+    # hardly a node is thin enough), and internal nodes crossed whole
+    # wherever their optical depth is below 100.
+    nvdb, _ = make_grid(name, dense=False)
+    vol = load_nvdb(nvdb)
+    _, a, _ = assert_same_expectation(cloud_scene(vol, CLOUD_SCALE[name]),
+                                      local_args={"coarse_optical_depth": coarse})
+    # The medium is seen: the image is not the sky alone
+    assert a.std() > 0.01
+
+
+@pytest.mark.parametrize("variant", ["llvm_ad_mono", "scalar_mono", "llvm_ad_spectral",
+                                     "scalar_spectral"])
+def test06_scattering_mono_and_spectral(make_grid, variant):
+    # The same in a monochrome and a spectral variant (whichever of each
+    # this Mitsuba build has): spectral paths carry 4 wavelengths, and the
+    # RGB albedo becomes a spectrum (the null-collision weights
+    # mu_n / mean(mu_n) of volpathlocal are 1 for a grey extinction).
+    _setup_variant(variant)
+    nvdb, _ = make_grid("noisy_cloud", dense=False)
+    vol = load_nvdb(nvdb)
+    spp = 64 if dr.is_jit_v(mi.Float) else 32
+    assert_same_expectation(cloud_scene(vol, 8.0), spp=spp)
+
+
+def test07_surface_inside_medium(variants_rgb, make_grid):
+    # A diffuse sphere inside the cloud's cube: tracking stops at the
+    # surface, paths scatter there and continue in the same medium; shadow
+    # rays from it cross the medium.
+    nvdb, _ = make_grid("fog_sphere", dense=False)
+    vol = load_nvdb(nvdb)
+    med = medium(vol, 3.0)
+
+    def scene(integrator, **kw):
+        return sky_and_sun_scene(integrator, {
+            "cube": unit_cube(med),
+            "ball": {"type": "sphere", "center": [0.45, 0.55, 0.5], "radius": 0.22,
+                     "bsdf": {"type": "diffuse",
+                              "reflectance": {"type": "rgb", "value": [0.8, 0.3, 0.2]}},
+                     "interior": med, "exterior": med},
+        }, **kw)
+    assert_same_expectation(scene)
+
+
+def test08_medium_inside_dielectric(variants_rgb, make_grid):
+    # The cloud's cube bounded by glass (ior 1.33): refraction into and out
+    # of the medium, internal reflection, shadow rays blocked by the
+    # boundary (only specular chains reach the sky from inside).
+    nvdb, _ = make_grid("noisy_cloud", dense=False)
+    vol = load_nvdb(nvdb)
+
+    def scene(integrator, **kw):
+        return sky_and_sun_scene(integrator, {
+            "cube": unit_cube(medium(vol, 6.0), bsdf={"type": "dielectric", "int_ior": 1.33}),
+        }, **kw)
+    assert_same_expectation(scene)
+
+
+@pytest.mark.parametrize("filter_type", ["nearest", "trilinear"])
+def test09_rotated_scaled_grid_transform(variants_rgb, make_grid, filter_type):
+    # noisy_cloud's own index-to-world map (voxel 0.5, offset (1, 2, 3))
+    # with use_grid_transform, then a to_world that moves its box's centre
+    # to the origin, scales it non-uniformly and rotates it about a skew
+    # axis; a cube shape with the same transform bounds the medium. The
+    # walk must follow world -> index through all of that (the medium's
+    # box is the world AABB of the turned box: lookups outside the grid
+    # read background 0).
+    nvdb, _ = make_grid("noisy_cloud", dense=False)
+    grid_box = load_nvdb(nvdb, use_grid_transform=True).bbox()
+    lo, hi = np.array(grid_box.min, dtype=float), np.array(grid_box.max, dtype=float)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    to_world = (T4().translate([0.5, 0.5, 0.5]) @ T4().rotate([1, 2, 0.5], 37)
+                @ T4().scale([0.045, 0.03, 0.055]) @ T4().translate((-centre).tolist()))
+    vol = load_nvdb(nvdb, use_grid_transform=True, filter_type=filter_type, to_world=to_world)
+    box = to_world @ T4().translate(centre.tolist()) @ T4().scale(half.tolist())
+
+    def scene(integrator, **kw):
+        return sky_and_sun_scene(integrator, {"cube": unit_cube(medium(vol, 14.0),
+                                                                to_world=box)}, **kw)
+    _, a, _ = assert_same_expectation(scene)
+    assert a.std() > 0.01
+
+
+@pytest.mark.parametrize("name", ["lower_tiles", "upper_tiles", "root_tiles_negative", "empty"])
+def test10_tile_and_multi_root_grids(variants_rgb, make_grid, name):
+    # Tiles at every level beside voxels, several root entries at negative
+    # coordinates, inactive non-background tiles, and an empty grid (both
+    # images are then the sky)
+    nvdb, _ = make_grid(name, dense=False)
+    vol = load_nvdb(nvdb)
+    scale = {"lower_tiles": 4.0, "upper_tiles": 3.0, "root_tiles_negative": 2.0}.get(name, 5.0)
+    for coarse in [0.0, 2.0]:
+        assert_same_expectation(cloud_scene(vol, scale),
+                                local_args={"coarse_optical_depth": coarse})
+
+
+FAR_RANDOM = {
+    # 24^3 random boxes (0.5 ... 2), |ijk| ~ 1e6 and 2e9; the second
+    # straddles root tiles (4096 * 488281 = 1999998976) in x, y and z
+    "far_1e6": (1_000_000 - 12, -1_000_000 - 12, 5),
+    "far_2e9_8_roots": (1_999_998_976 - 12, -1_999_998_976 - 12, 1_999_998_976 - 12),
+}
+
+
+@pytest.mark.parametrize("case", list(FAR_RANDOM))
+@pytest.mark.parametrize("filter_type", ["nearest", "trilinear"])
+def test11_far_from_origin_scattering(variants_rgb, tmp_path, case, filter_type):
+    # Resolvable grids far from the origin (default mode: the unit cube
+    # spans the 24^3 box), across leaves, lower and upper nodes and, for
+    # the second, root tiles; random values, so the walk's per-node
+    # majorants differ along a ray.
+    lo = np.array(FAR_RANDOM[case], dtype=np.int64)
+    nvdb, _, _ = make_stab(tmp_path, case, "--min", *lo, "--max", *(lo + 23), "--fill",
+                           "random", "--lo", 0.5, "--hi", 2.0, dense=False)
+    vol = load_nvdb(nvdb, filter_type=filter_type)
+    _, a, _ = assert_same_expectation(cloud_scene(vol, 3.0))
+    assert a.std() > 0.01
+
+
+@pytest.mark.slow
+def test12_far_coords_spanning_2e9_voxels(variants_rgb, make_grid):
+    # far_coords: 111 voxels in root entries up to |ijk| = 1e9, so in default
+    # mode the unit cube spans 2e9 voxels, each 5e-10 wide (below the float
+    # resolution of a local point, 6e-8): the image is the sky up to
+    # rounding. The walk crosses the empty root space cell by cell
+    # (measured: 1.8e5 walk steps per sample, against 6 lookups per sample
+    # for volpath), hence the small image.
+    nvdb, _ = make_grid("far_coords", dense=False)
+    vol = load_nvdb(nvdb)
+    _, a, b = assert_same_expectation(
+        lambda integrator, **kw: cloud_scene(vol, 5.0)(integrator, size=8, **kw), spp=4)
+    np.testing.assert_allclose(b.mean(axis=(0, 1, 2)), a.mean(axis=(0, 1, 2)), rtol=1e-6)
+
+
+# ---------------------------------------------------------------------------
+#  Fallback media and mixed scenes
+# ---------------------------------------------------------------------------
+
+def test13_fallback_media_match_volpath(variants_rgb, make_grid):
+    # A homogeneous medium and a gridvolume-based heterogeneous medium (the
+    # dense export of the cloud) are not tracked: volpathlocal samples them
+    # through the medium's own sample_interaction, as volpath does.
+    _, dense = make_grid("noisy_cloud")
+    grid = load_dense(dense)
+
+    def scene(integrator, **kw):
+        return sky_and_sun_scene(integrator, {
+            "cube": unit_cube(medium(grid, 8.0)),
+            "ball": {"type": "sphere", "center": [0.5, 0.5, 1.5], "radius": 0.35,
+                     "bsdf": {"type": "null"},
+                     "interior": {"type": "homogeneous",
+                                  "sigma_t": {"type": "rgb", "value": [0.5, 0.75, 1.0]},
+                                  "scale": 4.0,
+                                  "albedo": {"type": "rgb", "value": [0.9, 0.7, 0.5]}}},
+        }, target=(0.5, 0.5, 0.8), distance=1.3, **kw)
+    assert_same_expectation(scene, tracked=0)
+
+
+def test14_tracked_and_homogeneous_media_side_by_side(variants_rgb, make_grid):
+    # A tracked nanovdb medium in one cube and a homogeneous medium in a
+    # slab above it, 0.05 apart: paths cross from one medium into the other
+    # through the vacuum between, and shadow rays cross both.
+    nvdb, _ = make_grid("fog_sphere", dense=False)
+    vol = load_nvdb(nvdb)
+
+    def scene(integrator, **kw):
+        return sky_and_sun_scene(integrator, {
+            "cube": unit_cube(medium(vol, 5.0)),
+            "slab": unit_cube({"type": "homogeneous",
+                               "sigma_t": {"type": "rgb", "value": [0.6, 0.8, 1.0]},
+                               "scale": 2.5,
+                               "albedo": 0.8},
+                              to_world=T4().translate([0.5, 1.3, 0.5]).scale([0.6, 0.25, 0.6])),
+        }, target=(0.5, 0.8, 0.5), distance=1.3, **kw)
+    assert_same_expectation(scene)
+
+
+# ---------------------------------------------------------------------------
+#  Work done, parameters
+# ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name,local_args", [("noisy_cloud", {}), ("upper_tiles", {}),
+                                             ("fog_sphere", TRACK_ALWAYS)])
+def test15_fewer_lookups_than_volpath(variants_rgb, make_grid, name, local_args):
+    # count_lookups: volpath looks the grid up at every tentative collision
+    # against the global majorant (scale * max()); volpathlocal skips empty
+    # and thin space by the walk, so it looks up less for the same image
+    # (noisy_cloud and upper_tiles are tracked by default; fog_sphere's
+    # local majorants average 0.84 of max(), above the default's 0.75).
+    # The counters are cumulative: differences around each render.
+    nvdb, _ = make_grid(name, dense=False)
+    vol = load_nvdb(nvdb, count_lookups=True)
+    counts = {}
+    for integrator, args in [("volpath", {}), ("volpathlocal", local_args)]:
+        before = parse_counts(vol)
+        _, scene = render(sky_and_sun_scene(integrator, {"cube": unit_cube(medium(vol, 4.0))},
+                                            size=16, spp=16, **args), seeds=(0,))
+        after = parse_counts(vol)
+        counts[integrator] = (after[0] - before[0], after[1] - before[1])
+    print(f"{mi.variant()} {name}: (lookups, walk steps) {counts}")
+    assert tracked_media(scene) == 1
+    assert counts["volpath"][0] > 0 and counts["volpath"][1] == 0
+    assert counts["volpathlocal"][1] > 0
+    assert counts["volpathlocal"][0] < counts["volpath"][0]
+
+
+@pytest.mark.parametrize("name,value", [("coarse_optical_depth", -1.0),
+                                        ("coarse_optical_depth", float("inf")),
+                                        ("coarse_optical_depth", float("nan")),
+                                        ("max_majorant_ratio", -0.5),
+                                        ("max_majorant_ratio", 1.5),
+                                        ("max_majorant_ratio", float("nan"))])
+def test16_bad_parameters(variant_scalar_rgb, name, value):
+    # Checked in the constructor; the message names the parameter
+    with pytest.raises(RuntimeError, match=name):
+        mi.load_dict({"type": "volpathlocal", name: value})
+
+
+def test17_default_tracks_only_where_local_majorants_pay(variants_rgb, make_grid, tmp_path):
+    # Default max_majorant_ratio 0.75: a cube of one density (local
+    # majorants = the global one, ratio 1) is tracked as volpath does; the
+    # cloud (ratio ~0.55) through the walk.
+    nvdb, _, _ = make_stab(tmp_path, "cube", "--max", 15, 15, 15, "--value", 1.0, dense=False)
+    cloud, _ = make_grid("noisy_cloud", dense=False)
+    for path, tracked in [(nvdb, 0), (cloud, 1)]:
+        vol = load_nvdb(path)
+        _, scene = render(sky_and_sun_scene("volpathlocal", {"cube": unit_cube(medium(vol, 2.0))},
+                                            size=4, spp=1), seeds=(0,))
+        assert tracked_media(scene) == tracked, path
