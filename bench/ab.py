@@ -5,6 +5,7 @@ variant), interleaved (A B A B ...), so that both builds see the same machine.
     python3 bench/ab.py --builds OLD_BUILD NEW_BUILD --grids a.nvdb b.nvdb \
         [--variants llvm_ad_rgb scalar_rgb] [--rounds 3] [--out table.md]
         [--load-only] [--volume-args '{"invalid_values": "clamp"}']
+        [--integrator volpathlocal] [--filters trilinear]
 
 A build is a directory holding plugins/nanovdbvolume.so. Per process and
 filter (nearest, trilinear): the load time (mi.load_dict of the volume: read,
@@ -14,7 +15,9 @@ no vectorized lookup, so none), and the render time of the benchmark scene's
 first sensor (llvm: 128^2, 16 spp; scalar: 64^2, 16 spp; warm median of 3).
 The table gives the median over the rounds of each build and new/old.
 --load-only measures the load time alone (median of 7 loads per process);
---volume-args adds plugin parameters (JSON) to every volume.
+--volume-args adds plugin parameters (JSON) to every volume; --integrator
+renders with another integrator (volpathlocal: both builds need
+plugins/volpathlocal.so); --filters limits the filters.
 A measurement, not a test.
 """
 import argparse
@@ -39,7 +42,7 @@ def sync():
     if jit:
         dr.sync_thread()
 out = {{}}
-for filt in ("nearest", "trilinear"):
+for filt in {filters!r}:
     loads = []
     desc = dict(volume_dict("nanovdbvolume", {grid!r}, filt), **{extra!r})
     for k in range(7 if {load_only!r} else 3):
@@ -64,7 +67,7 @@ for filt in ("nearest", "trilinear"):
             ts.append(time.perf_counter() - t0)
         r["lookups_per_s"] = n / statistics.median(ts[1:])
     res, spp = (128, 16) if jit else (64, 16)
-    scene = mi.load_dict(turntable_scene(vol, res, spp))
+    scene = mi.load_dict(turntable_scene(vol, res, spp, integrator={integrator!r}))
     ts = []
     for k in range(4):
         t0 = time.perf_counter()
@@ -88,6 +91,9 @@ def main():
     ap.add_argument("--out")
     ap.add_argument("--load-only", action="store_true")
     ap.add_argument("--volume-args", default="{}", help="JSON: extra plugin parameters")
+    ap.add_argument("--integrator", default="volpath", choices=["volpath", "volpathlocal"])
+    ap.add_argument("--filters", nargs="+", default=["nearest", "trilinear"],
+                    choices=["nearest", "trilinear"])
     a = ap.parse_args()
     extra = json.loads(a.volume_args)
     for b in a.builds:
@@ -102,7 +108,8 @@ def main():
                 for tag, build in zip(("old", "new"), a.builds):
                     code = CHILD.format(here=HERE, variant=variant, build=os.path.abspath(build),
                                         grid=os.path.abspath(g), extra=extra,
-                                        load_only=a.load_only)
+                                        load_only=a.load_only, filters=a.filters,
+                                        integrator=a.integrator)
                     p = subprocess.run([sys.executable, "-c", code], capture_output=True,
                                        text=True)
                     if p.returncode != 0:
@@ -121,6 +128,7 @@ def main():
 
     L = [f"old = `{a.builds[0]}`, new = `{a.builds[1]}`; {a.rounds} rounds, interleaved; "
          f"volume parameters {extra or 'default'}{'; load only' if a.load_only else ''}; "
+         f"integrator {a.integrator}; "
          "medians over the rounds. load: mi.load_dict of the volume; lookups: llvm, one "
          "eval_1 over 2^20 points; render: first sensor of the benchmark scene (llvm 128² "
          "16 spp, scalar 64² 16 spp).\n",
@@ -128,7 +136,7 @@ def main():
          "lookups new/old | render old [s] | render new/old |",
          "|---|---|---|---:|---:|---:|---:|---:|---:|"]
     for (variant, g), runs in results.items():
-        for filt in ("nearest", "trilinear"):
+        for filt in a.filters:
             row = [variant, os.path.basename(g), filt]
             for key, scale, inverse in (("load_s", 1, False), ("lookups_per_s", 1e-6, False),
                                         ("render_s", 1, False)):

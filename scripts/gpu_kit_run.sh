@@ -86,6 +86,7 @@ if want doctest; then
   step doctest_translation "$H/build/bin/test_translation"
   step doctest_io "$H/build/bin/test_io"
   step doctest_hdda "$H/build/bin/test_hdda"
+  step doctest_majorant_walk "$H/build/bin/test_majorant_walk"
 fi
 if want pytest; then
   step pytest "$PYTHON" -m pytest tests -p no:cacheprovider -rs --durations=15 \

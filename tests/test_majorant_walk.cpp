@@ -30,6 +30,7 @@
 
 #include <doctest/doctest.h>
 #include <grids.h>
+#include <hand_walk.h>
 
 #include <nanovdb/util/OpenToNanoVDB.h>
 
@@ -189,45 +190,9 @@ struct Reference {
     }
 };
 
-/// The bound of the finest cell holding absolute voxel ijk, by hand: NanoVDB's
-/// node structs find the node, the loader's table gives its bound (nodes and
-/// bricks with M - m <= 0 are crossed whole, as the walk does with
-/// coarse_limit = 0)
+/// The bound of the finest cell holding absolute voxel ijk (tests/hand_walk.h)
 float expected_bound(const WalkGrid &g, const nanovdb::Coord &ijk) {
-    const auto &tree = g.handle.grid<float>()->tree();
-    const auto &root = tree.root();
-    const auto &L = g.majorants.layout;
-    const std::vector<float> &m = g.majorants.values;
-    auto clamp0 = [](float v) { return std::max(v, 0.f); };
-    const nanovdb::Coord block = ijk & ~4095;
-    for (uint32_t t = 0; t < root.tileCount(); ++t) {
-        const auto *tile = root.data()->tile(t);
-        if (tile->origin() != block)
-            continue;
-        if (!tile->isChild())
-            return clamp0(m[L.tile_slot + t]);
-        const auto *up = root.data()->getChild(tile);
-        const uint32_t uslot = L.upper_slot + ndr::UPPER_SLOTS * uint32_t(up - tree.getFirstNode<2>());
-        // A node of one value (M - m <= 0) is crossed whole, with its M
-        if (!(m[uslot] - m[uslot + 2] > 0.f))
-            return clamp0(m[uslot]);
-        const uint32_t nu = up->CoordToOffset(ijk);
-        if (!up->data()->isChild(nu))
-            return clamp0(std::max(up->data()->getValue(nu), m[uslot + 1]));
-        const auto *lo = up->data()->getChild(nu);
-        const uint32_t slot = L.lower_slot + ndr::LOWER_SLOTS * uint32_t(lo - tree.getFirstNode<1>());
-        if (!(m[slot] - m[slot + 2] > 0.f))
-            return clamp0(m[slot]);
-        const float brick = m[slot + 3 + ndr::brick_of(uint32_t(ijk[0]), uint32_t(ijk[1]),
-                                                        uint32_t(ijk[2]))];
-        if (!(brick - m[slot + 2] > 0.f))
-            return clamp0(brick);
-        const uint32_t nl = lo->CoordToOffset(ijk);
-        if (!lo->data()->isChild(nl))
-            return clamp0(std::max(lo->data()->getValue(nl), std::min(m[slot + 1], brick)));
-        return clamp0(m[uint32_t(lo->data()->getChild(nl) - tree.getFirstNode<0>())]);
-    }
-    return clamp0(m[L.background_slot]);
+    return nvdb_test::finest_bound(*g.handle.grid<float>(), g.majorants, ijk);
 }
 
 } // namespace

@@ -1,5 +1,6 @@
 // src/loader/detail.h -- small helpers shared by the loader's modules
-// (container.cpp, validation.cpp, values.cpp, reader_policy.cpp). Internal:
+// (container.cpp, validation.cpp, values.cpp, reader_policy.cpp, the
+// majorants). Internal:
 // not installed, not included by the plugin.
 #pragma once
 
@@ -30,6 +31,10 @@ template <typename T> inline T load(const uint8_t *p) {
 }
 
 using layout::version_major;
+
+/// a + b on int32 coordinates with wrap-around, as the lookups' coordinates
+/// wrap (plain int32 overflow would be undefined)
+inline int32_t wrap_add(int32_t a, int64_t b) { return int32_t(uint32_t(a) + uint32_t(b)); }
 
 inline std::string version_string(uint32_t v) {
     return std::to_string(v >> 21) + "." + std::to_string((v >> 10) & 0x7ffu) +

@@ -1,14 +1,17 @@
-// Per-node majorants (src/loader/node_majorants.cpp) against independent
+// Per-node majorants (src/loader/node_majorants.cpp) and their mean over a
+// box (src/loader/mean_bound.cpp) against independent
 // references: NanoVDB's own accessor, read voxel by voxel over a leaf and its
 // ring, and max_in_box() (itself tested box for box against that accessor in
 // test_majorants.cpp) over the regions and rings of lower nodes, upper nodes,
 // tiles and the background. The nodes and their origins come from NanoVDB's
-// node structs, not from our traversal.
+// node structs, not from our traversal; mean_bound against the walk done by
+// hand at every voxel of the box (tests/hand_walk.h).
 
 #include <doctest/doctest.h>
 
 #include "fixtures.h"
 #include "grids.h"
+#include "hand_walk.h"
 
 #include <nanovdb_loader/majorants.h>
 
@@ -280,6 +283,24 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
     }
     if (in_range)
         check(maj.values[L.background_slot], bg, "background");
+    // mean_bound over the trilinear lookup box, voxel by voxel by hand
+    const nio::IndexBox lb = nio::lookup_box(v.summary(), true);
+    uint64_t voxels = 1;
+    for (int a = 0; a < 3; ++a)
+        voxels *= uint64_t(int64_t(lb.hi[a]) - lb.lo[a] + 1);
+    if (voxels <= (uint64_t(1) << 22)) {
+        const float clamp = nio::max_in_box(v, lb);
+        double sum = 0.0;
+        for (int64_t i = lb.lo[0]; i <= lb.hi[0]; ++i)
+            for (int64_t j = lb.lo[1]; j <= lb.hi[1]; ++j)
+                for (int64_t k = lb.lo[2]; k <= lb.hi[2]; ++k)
+                    sum += std::min(nvdb_test::finest_bound(
+                                        grid, maj, nanovdb::Coord(int32_t(i), int32_t(j), int32_t(k))),
+                                    clamp);
+        const double want = sum / double(voxels), got = nio::mean_bound(v, maj, lb, clamp);
+        INFO(name << ": mean_bound " << got << ", by hand " << want);
+        CHECK(std::fabs(got - want) <= 1e-9 * std::max(1.0, std::fabs(want)));
+    }
     MESSAGE(name, ": ", n.leaves, " leaves, ", n.lowers, " lower, ", n.uppers, " upper nodes, ",
             n.tiles, " root tiles checked; ", n.mismatches, " mismatches; ", maj.bytes(),
             " bytes of majorants for a ", h.size(), "-byte grid");
