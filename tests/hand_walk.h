@@ -12,6 +12,7 @@
 #include <nanovdb_loader/majorants.h>
 
 #include <algorithm>
+#include <cstring>
 #include <vector>
 
 namespace nvdb_test {
@@ -47,9 +48,11 @@ inline float finest_bound(const nanovdb::FloatGrid &grid, const nanovdb_loader::
         const uint32_t slot = L.lower_slot + ndr::LOWER_SLOTS * uint32_t(lo - tree.getFirstNode<1>());
         if (!(m[slot] - m[slot + 2] > 0.f))
             return clamp0(m[slot]);
-        const float brick = m[slot + 3 + ndr::brick_of(uint32_t(ijk[0]), uint32_t(ijk[1]),
-                                                        uint32_t(ijk[2]))];
-        if (!(brick - m[slot + 2] > 0.f))
+        const uint32_t b = ndr::brick_of(uint32_t(ijk[0]), uint32_t(ijk[1]), uint32_t(ijk[2]));
+        const float brick = m[slot + ndr::LOWER_BRICK_M_SLOT + b];
+        uint32_t fractions;
+        std::memcpy(&fractions, &m[slot + ndr::LOWER_BRICK_FRACTION_SLOT + b / 4], 4);
+        if (!(brick - ndr::brick_min(brick, (fractions >> (8 * (b % 4))) & 255u) > 0.f))
             return clamp0(brick);
         const uint32_t nl = lo->CoordToOffset(ijk);
         if (!lo->data()->isChild(nl))

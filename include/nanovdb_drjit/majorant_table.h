@@ -12,7 +12,8 @@
     The array, in slots of one float:
 
       [0, leaf_count)                         one per leaf, in leaf array order
-      lower_slot + 67 n + {0, 1, 2, 3 + b}    lower node n: M, R, m, brick b's M
+      lower_slot + 83 n + {0, 1, 2, 3 + b,    lower node n: M, R, m, brick b's M,
+                           67 + b / 4}        brick b's m (8 bits, byte b % 4)
       upper_slot + 3 n + {0, 1, 2}            upper node n: M, R, m
       tile_slot + t                           root tile t, in table order
       background_slot                         the background
@@ -23,7 +24,9 @@
     node is -- M - m small means crossing it whole adds few null collisions,
     however large M is). A leaf's slot bounds
     its 8^3 voxels. A lower node is also cut into 4^3 bricks of 32^3 voxels
-    (b = x-major brick index), each with its own M: a level between the
+    (b = x-major brick index), each with its own M and m (m as a fraction
+    q / 255 of the brick's M, rounded down, four bricks to a slot: like the
+    node's m a measure, not a bound, so 8 bits do): a level between the
     lower node and its leaves that lets a walk cross thin parts of a node
     in larger steps (and bounds the node's tiles by min(R, brick M)). See
     nanovdb_loader/majorants.h for the exact definitions.
@@ -43,14 +46,31 @@ namespace nanovdb_drjit {
 /// A lower node's bricks: 4^3 bricks of 32^3 voxels (4^3 of its entries)
 static constexpr uint32_t BRICK_LOG2_DIM = 5;
 static constexpr uint32_t LOWER_BRICK_COUNT = 64;
-/// Slots per lower node: M, R, m and one per brick; per upper node: M, R, m
-static constexpr uint32_t LOWER_SLOTS = 3 + LOWER_BRICK_COUNT;
+/// Slots per lower node: M, R, m, one M per brick, then the bricks' m as
+/// 8-bit fractions of their M, four to a slot; per upper node: M, R, m
+static constexpr uint32_t LOWER_BRICK_M_SLOT = 3;
+static constexpr uint32_t LOWER_BRICK_FRACTION_SLOT = LOWER_BRICK_M_SLOT + LOWER_BRICK_COUNT;
+static constexpr uint32_t LOWER_SLOTS = LOWER_BRICK_FRACTION_SLOT + LOWER_BRICK_COUNT / 4;
 static constexpr uint32_t UPPER_SLOTS = 3;
 
 /// The brick (0..63) of a lower node that holds local coordinate ijk & 127
 constexpr uint32_t brick_of(uint32_t i, uint32_t j, uint32_t k) {
     return (((i & 127u) >> BRICK_LOG2_DIM) << 4) | (((j & 127u) >> BRICK_LOG2_DIM) << 2) |
            ((k & 127u) >> BRICK_LOG2_DIM);
+}
+
+/// A brick's m from its M and its 8-bit fraction q (the device and the tests
+/// compute it so, bit for bit)
+inline float brick_min(float M, uint32_t q) { return M * (float(q) / 255.f); }
+
+/// The 8-bit fraction stored for a brick with max M and min m
+inline uint32_t brick_fraction(float M, float m) {
+    if (!(M > 0.f) || !(m > 0.f))
+        return 0;
+    if (m >= M)
+        return 255;
+    const float q = 255.f * (m / M);
+    return q >= 255.f ? 254u : uint32_t(q); // below 255: m < M stays visible
 }
 
 /// Where the bounds of a grid's nodes sit in its majorant array

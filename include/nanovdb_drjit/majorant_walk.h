@@ -89,6 +89,11 @@ template <typename UInt32> struct MajorantGrid {
             float v = values[i] * factor;
             std::memcpy(&bits[i], &v, 4);
         }
+        // The bricks' 8-bit fractions are bits, not values: kept as they are
+        for (uint32_t s = layout.lower_slot; s < layout.upper_slot; s += LOWER_SLOTS)
+            for (uint32_t w = 0; w < LOWER_BRICK_COUNT / 4; ++w)
+                std::memcpy(&bits[s + LOWER_BRICK_FRACTION_SLOT + w],
+                            &values[s + LOWER_BRICK_FRACTION_SLOT + w], 4);
         float bg = values[layout.background_slot] * factor;
         if constexpr (dr::is_jit_v<UInt32>)
             g.table = dr::load<UInt32>(bits.data(), bits.size());
@@ -133,7 +138,7 @@ template <typename Float> struct MajorantWalk {
     Float lower_M, lower_R, lower_m; ///< its bounds, and its smallest value
     UInt32 lower_slot;              ///< its first slot in the majorant table
     UInt32 brick_slot;              ///< the last brick's slot (0: none)
-    Float brick_M;                  ///< ... and its bound
+    Float brick_M, brick_m;         ///< ... its bound and its smallest value
 
     /// The end of the current cell along the ray (its bound holds on
     /// [hdda.tmin, segment_end()])
@@ -143,7 +148,7 @@ template <typename Float> struct MajorantWalk {
     }
 
     DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_R, lower_m,
-                 lower_slot, brick_slot, brick_M)
+                 lower_slot, brick_slot, brick_M, brick_m)
 };
 
 namespace detail {
@@ -308,16 +313,21 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
         u[k] = dr::reinterpret_array<UInt32>(ijk[k]) & 127u;
     UInt32 brick = ((u[0] >> BRICK_LOG2_DIM) << 4) | ((u[1] >> BRICK_LOG2_DIM) << 2) |
                    (u[2] >> BRICK_LOG2_DIM);
-    // The brick's bound: kept from the last step when it is the same brick
-    UInt32 brick_slot = cell.lower_slot + 3u + brick;
-    Mask same_brick = into_lower & (brick_slot == walk.brick_slot);
-    Float brick_M = dr::select(
-        same_brick, walk.brick_M,
-        detail::read_bound(g.words(), brick_slot, into_lower & !same_brick));
+    // The brick's bound and m: kept from the last step when it is the same brick
+    UInt32 brick_slot = cell.lower_slot + LOWER_BRICK_M_SLOT + brick;
+    Mask same_brick = into_lower & (brick_slot == walk.brick_slot),
+         new_brick = into_lower & !same_brick;
+    Float brick_M = dr::select(same_brick, walk.brick_M,
+                               detail::read_bound(g.words(), brick_slot, new_brick));
+    UInt32 fractions = read_uint32(
+        g.words(), UInt32(cell.lower_slot + LOWER_BRICK_FRACTION_SLOT + (brick >> 2)), new_brick);
+    Float brick_m = dr::select(
+        same_brick, walk.brick_m,
+        brick_M * (Float((fractions >> ((brick & 3u) << 3)) & 255u) / 255.f));
     walk.brick_slot = dr::select(into_lower, brick_slot, walk.brick_slot);
     walk.brick_M = dr::select(into_lower, brick_M, walk.brick_M);
-    // (the node's m is at most the brick's smallest value)
-    Mask thin_brick = into_lower & ((brick_M - cell.lower_m) * float(1u << BRICK_LOG2_DIM) <=
+    walk.brick_m = dr::select(into_lower, brick_m, walk.brick_m);
+    Mask thin_brick = into_lower & ((brick_M - brick_m) * float(1u << BRICK_LOG2_DIM) <=
                                     coarse_limit);
     Mask into_brick = into_lower & !thin_brick;
 

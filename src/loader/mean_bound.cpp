@@ -8,6 +8,7 @@
 #include "detail.h"
 
 #include <algorithm>
+#include <cstring>
 #include <unordered_set>
 
 namespace nanovdb_loader {
@@ -120,8 +121,11 @@ private:
             const double vol = overlap(eo, layout::LOWER_ENTRY_LOG2);
             if (vol == 0.0)
                 continue;
-            const float brick = m_v[slot + 3 + nanovdb_drjit::brick_of(i << 3, j << 3, k << 3)];
-            if (uniform(brick, m)) {
+            const uint32_t b = nanovdb_drjit::brick_of(i << 3, j << 3, k << 3);
+            const float brick = m_v[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b];
+            uint32_t fractions;
+            std::memcpy(&fractions, &m_v[slot + nanovdb_drjit::LOWER_BRICK_FRACTION_SLOT + b / 4], 4);
+            if (uniform(brick, nanovdb_drjit::brick_min(brick, (fractions >> (8 * (b % 4))) & 255u))) {
                 add(brick, vol);
                 continue;
             }

@@ -15,6 +15,7 @@
 #include "detail.h"
 
 #include <algorithm>
+#include <cstring>
 #include <iterator>
 #include <cmath>
 #include <limits>
@@ -311,37 +312,52 @@ private:
     /// A lower node at byte `node`, first voxel `o`: returns its M
     float lower(uint64_t node, const int32_t o[3]) {
         float M = kNone, R = kNone;
-        float brick[nanovdb_drjit::LOWER_BRICK_COUNT];
+        float brick[nanovdb_drjit::LOWER_BRICK_COUNT], brick_lo[nanovdb_drjit::LOWER_BRICK_COUNT];
         std::fill(std::begin(brick), std::end(brick), kNone);
+        std::fill(std::begin(brick_lo), std::end(brick_lo), std::numeric_limits<float>::infinity());
         for (uint32_t n = 0; n < layout::LOWER_TABLE_COUNT; ++n) {
             const int32_t eo[3] = { wrap_add(o[0], int64_t(n >> 8) << 3),
                                     wrap_add(o[1], int64_t((n >> 4) & 15) << 3),
                                     wrap_add(o[2], int64_t(n & 15) << 3) };
             const uint64_t e = node + m_c.lower_off_table + uint64_t(n) * m_c.table_stride;
-            float r;
+            float r, lo;
             if (child_bit(node, layout::LOWER_OFF_CHILD_MASK, n)) {
                 const uint64_t leaf = uint64_t(int64_t(node) + load<int64_t>(m_buf + e));
                 const size_t i = leaf_index(leaf);
                 r = m_grid.leaf_max()[i];
+                lo = m_grid.leaf_min()[i];
                 ring(0, eo, r);
                 raise(m_out.values[i], r);
             } else {
                 const float v = start(load<float>(m_buf + e));
-                r = v;
+                r = lo = v;
                 ring(0, eo, r);
                 if (r > v)
                     raise(R, r);
             }
             raise(M, r);
-            raise(brick[nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
-                                                uint32_t((n >> 4) & 15) << 3,
-                                                uint32_t(n & 15) << 3)], r);
+            const uint32_t b = nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
+                                                       uint32_t((n >> 4) & 15) << 3,
+                                                       uint32_t(n & 15) << 3);
+            raise(brick[b], r);
+            lower_to(brick_lo[b], lo);
         }
         const size_t i = lower_index(node);
         const uint32_t slot = m_out.layout.lower_slot + nanovdb_drjit::LOWER_SLOTS * uint32_t(i);
         store(slot, M, R, m_lower_min[i]);
         for (uint32_t b = 0; b < nanovdb_drjit::LOWER_BRICK_COUNT; ++b)
-            raise(m_out.values[slot + 3 + b], brick[b]);
+            raise(m_out.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b], brick[b]);
+        // The bricks' m, 8-bit fractions of their (final) M, four to a slot
+        for (uint32_t w = 0; w < nanovdb_drjit::LOWER_BRICK_COUNT / 4; ++w) {
+            uint32_t bits = 0;
+            for (uint32_t k = 0; k < 4; ++k) {
+                const uint32_t b = 4 * w + k;
+                bits |= nanovdb_drjit::brick_fraction(
+                            m_out.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b], brick_lo[b])
+                        << (8 * k);
+            }
+            std::memcpy(&m_out.values[slot + nanovdb_drjit::LOWER_BRICK_FRACTION_SLOT + w], &bits, 4);
+        }
         return M;
     }
 

@@ -124,6 +124,15 @@ float ring_bound(const nio::ValidatedGrid &v, const Node &node, const nanovdb::C
     return R;
 }
 
+/// The smallest value of a leaf (NaN skipped; +Inf if none)
+template <typename Leaf> float leaf_min(const Leaf &leaf) {
+    float m = std::numeric_limits<float>::infinity();
+    for (uint32_t n = 0; n < 512; ++n)
+        if (leaf.getValue(n) < m)
+            m = leaf.getValue(n);
+    return m;
+}
+
 struct Counts {
     size_t leaves = 0, lowers = 0, uppers = 0, tiles = 0, mismatches = 0;
 };
@@ -147,13 +156,6 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
                         nanovdb_drjit::UPPER_SLOTS * tree.nodeCount(2) +
                         tree.root().tileCount() + 1);
     // m: every internal node's smallest value, through NanoVDB's node structs
-    auto leaf_min = [](const auto &leaf) {
-        float m = std::numeric_limits<float>::infinity();
-        for (uint32_t n = 0; n < 512; ++n)
-            if (leaf.getValue(n) < m)
-                m = leaf.getValue(n);
-        return m;
-    };
     auto lower_min = [&](const auto &lo) {
         float m = std::numeric_limits<float>::infinity();
         for (uint32_t n = 0; n < 4096; ++n) {
@@ -208,16 +210,36 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
               box_max(v, o[0] - 1, o[1] - 1, o[2] - 1, o[0] + 128, o[1] + 128, o[2] + 128),
               "lower " + std::to_string(i) + " M");
         check(maj.values[slot + 1], R, "lower " + std::to_string(i) + " R");
-        // Its bricks of 32^3, over their ringed regions
+        // Its bricks of 32^3: M over their ringed regions, m (an 8-bit
+        // fraction of M) over the values of their 4^3 entries (node structs)
         for (int32_t bx = 0; bx < 128; bx += 32)
             for (int32_t by = 0; by < 128; by += 32)
                 for (int32_t bz = 0; bz < 128; bz += 32) {
                     const int64_t x = int64_t(o[0]) + bx, y = int64_t(o[1]) + by,
                                   z = int64_t(o[2]) + bz;
-                    check(maj.values[slot + 3 + nanovdb_drjit::brick_of(uint32_t(bx), uint32_t(by),
-                                                                        uint32_t(bz))],
-                          box_max(v, x - 1, y - 1, z - 1, x + 32, y + 32, z + 32),
+                    const uint32_t b = nanovdb_drjit::brick_of(uint32_t(bx), uint32_t(by),
+                                                               uint32_t(bz));
+                    const float M_b = maj.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b];
+                    check(M_b, box_max(v, x - 1, y - 1, z - 1, x + 32, y + 32, z + 32),
                           "lower " + std::to_string(i) + " brick");
+                    float m_b = std::numeric_limits<float>::infinity();
+                    for (int32_t ex = bx; ex < bx + 32; ex += 8)
+                        for (int32_t ey = by; ey < by + 32; ey += 8)
+                            for (int32_t ez = bz; ez < bz + 32; ez += 8) {
+                                const uint32_t e = uint32_t(ex / 8) << 8 | uint32_t(ey / 8) << 4 |
+                                                   uint32_t(ez / 8);
+                                const float val = lower[i].data()->isChild(e)
+                                                      ? leaf_min(*lower[i].data()->getChild(e))
+                                                      : lower[i].data()->getValue(e);
+                                if (val < m_b)
+                                    m_b = val;
+                            }
+                    uint32_t fractions;
+                    std::memcpy(&fractions,
+                                &maj.values[slot + nanovdb_drjit::LOWER_BRICK_FRACTION_SLOT + b / 4], 4);
+                    check(float((fractions >> (8 * (b % 4))) & 255u),
+                          float(nanovdb_drjit::brick_fraction(M_b, m_b)),
+                          "lower " + std::to_string(i) + " brick fraction");
                 }
         ++n.lowers;
     }
