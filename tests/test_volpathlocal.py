@@ -578,19 +578,19 @@ def test14_tracked_and_homogeneous_media_side_by_side(variants_rgb, make_grid):
 #  Work done, parameters
 # ---------------------------------------------------------------------------
 
-@pytest.mark.parametrize("name,local_args", [("noisy_cloud", {}), ("upper_tiles", {}),
-                                             ("fog_sphere", TRACK_ALWAYS)])
-def test15_fewer_lookups_than_volpath(variants_rgb, make_grid, name, local_args):
+@pytest.mark.parametrize("name", ["noisy_cloud", "upper_tiles", "fog_sphere"])
+def test15_fewer_lookups_than_volpath(variants_rgb, make_grid, name):
     # count_lookups: volpath looks the grid up at every tentative collision
     # against the global majorant (scale * max()); volpathlocal skips empty
-    # and thin space by the walk, so it looks up less for the same image
-    # (noisy_cloud and upper_tiles are tracked by default; fog_sphere's
-    # local majorants average 0.84 of max(), above the default's 0.75).
-    # The counters are cumulative: differences around each render.
+    # and thin space by the walk, so it looks up less for the same image.
+    # Tracked whatever the ratio (local_majorant_ratio: noisy_cloud 0.55,
+    # upper_tiles 0.68, fog_sphere 0.84, all above the default 0.5, which
+    # test17 covers). The counters are cumulative: differences around each
+    # render.
     nvdb, _ = make_grid(name, dense=False)
     vol = load_nvdb(nvdb, count_lookups=True)
     counts = {}
-    for integrator, args in [("volpath", {}), ("volpathlocal", local_args)]:
+    for integrator, args in [("volpath", {}), ("volpathlocal", TRACK_ALWAYS)]:
         before = parse_counts(vol)
         _, scene = render(sky_and_sun_scene(integrator, {"cube": unit_cube(medium(vol, 4.0))},
                                             size=16, spp=16, **args), seeds=(0,))
