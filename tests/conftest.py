@@ -131,14 +131,17 @@ class GridFactory:
         self.dir = Path(directory)
         self.cache = {}
 
-    def __call__(self, name, codec="none", dense=True):
-        key = (name, codec, dense)
+    def __call__(self, name, codec="none", dense=True, value_type="float"):
+        """value_type: float, fp4, fp8, fp16, fpn or half (tests/typed_grids.h);
+        the dense export then holds the decoded values."""
+        key = (name, codec, dense, value_type)
         if key not in self.cache:
             if not MAKE_GRID.exists():
                 pytest.fail(f"{MAKE_GRID} is missing: build the project first")
-            nvdb = self.dir / f"{name}_{codec}.nvdb"
-            vol = self.dir / f"{name}.vol"
-            cmd = [str(MAKE_GRID), name, str(nvdb), "--codec", codec]
+            suffix = "" if value_type == "float" else f"_{value_type}"
+            nvdb = self.dir / f"{name}_{codec}{suffix}.nvdb"
+            vol = self.dir / f"{name}{suffix}.vol"
+            cmd = [str(MAKE_GRID), name, str(nvdb), "--codec", codec, "--type", value_type]
             if dense:
                 cmd += ["--dense", str(vol)]
             subprocess.run(cmd, check=True, capture_output=True, text=True)

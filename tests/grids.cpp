@@ -523,7 +523,8 @@ uint64_t dense_voxel_count(const nanovdb::NanoGrid<float> &grid) {
     return count > max ? max : uint64_t(count); // saturates; far past any limit anyway
 }
 
-void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &path) {
+void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &path,
+                     const std::function<float(const nanovdb::Coord &)> &value) {
     const uint64_t count = dense_voxel_count(grid);
     if (count > max_dense_voxels) {
         std::ostringstream msg;
@@ -575,9 +576,11 @@ void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &pa
     auto acc = grid.getAccessor();
     for (int32_t z = 0; z < res[2]; ++z) {
         for (int32_t y = 0; y < res[1]; ++y)
-            for (int32_t x = 0; x < res[0]; ++x)
-                put_f32(empty ? grid.tree().background()
-                              : acc.getValue(nanovdb::Coord(min[0] + x, min[1] + y, min[2] + z)));
+            for (int32_t x = 0; x < res[0]; ++x) {
+                const nanovdb::Coord ijk(min[0] + x, min[1] + y, min[2] + z);
+                const float v = empty ? grid.tree().background() : acc.getValue(ijk);
+                put_f32(value ? value(empty ? nanovdb::Coord(0, 0, 0) : ijk) : v);
+            }
         file.write(reinterpret_cast<const char *>(bytes.data()), std::streamsize(bytes.size()));
         bytes.clear();
     }

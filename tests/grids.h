@@ -15,6 +15,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -73,6 +74,10 @@ uint64_t dense_voxel_count(const nanovdb::NanoGrid<float> &grid);
 /// grid exports a 1x1x1 volume holding the background value over [0, 1]^3.
 /// Throws std::length_error when the export exceeds max_dense_voxels and
 /// std::runtime_error when the file cannot be written.
-void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &path);
+/// `value`, when given, replaces the accessor's values (the decoded values of
+/// a typed grid of the same topology: tests/typed_grids.h); an empty grid
+/// calls it at (0, 0, 0).
+void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &path,
+                     const std::function<float(const nanovdb::Coord &)> &value = {});
 
 } // namespace nvdb_test

@@ -3,18 +3,24 @@
 // Used by the pytest suite.
 //
 //   nvdb_make_test_grid NAME OUT.nvdb [--dense OUT.vol] [--codec none|zip|blosc]
-//                       [--scale N]
+//                       [--scale N] [--type float|fp4|fp8|fp16|fpn|half]
+//
+// --type: the grid in another value type (tests/typed_grids.h); --dense then
+// exports its decoded values (NanoVDB's accessor; Half: F16C). Half grids are
+// written as a raw grid buffer (NanoVDB 32.4's writer cannot build them).
 //   nvdb_make_test_grid --list
 //
 // Prints one summary line per grid; exits 2 on bad arguments, 1 on failure.
 
 #include "grids.h"
+#include "typed_grids.h"
 
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
+#include <fstream>
 #include <stdexcept>
 #include <iostream>
 #include <string>
@@ -25,7 +31,7 @@ namespace {
 
 const char *usage =
     "usage: nvdb_make_test_grid NAME OUT.nvdb [--dense OUT.vol] [--codec none|zip|blosc] "
-    "[--scale N]\n"
+    "[--scale N] [--type float|fp4|fp8|fp16|fpn|half]\n"
     "       nvdb_make_test_grid --list\n";
 
 int bad_args(const std::string &message) {
@@ -43,7 +49,7 @@ std::string valid_names() {
 } // namespace
 
 int main(int argc, char **argv) {
-    std::string name, out_path, dense_path, codec_name = "none";
+    std::string name, out_path, dense_path, codec_name = "none", type = "float";
     int scale = 1;
     bool have_name = false, have_out = false;
 
@@ -65,6 +71,14 @@ int main(int argc, char **argv) {
         } else if (arg == "--dense") {
             if (!value(dense_path))
                 return bad_args("--dense needs a file name");
+        } else if (arg == "--type") {
+            if (!value(type))
+                return bad_args("--type needs one of float, fp4, fp8, fp16, fpn, half");
+            try {
+                nvdb_test::grid_type_of(type);
+            } catch (const std::exception &e) {
+                return bad_args(e.what());
+            }
         } else if (arg == "--codec") {
             if (!value(codec_name))
                 return bad_args("--codec needs one of none, zip, blosc");
@@ -110,9 +124,9 @@ int main(int argc, char **argv) {
 
     try {
         const auto t0 = std::chrono::steady_clock::now();
-        nanovdb::GridHandle<nanovdb::HostBuffer> handle = nvdb_test::make_nano_grid(name, scale);
+        nvdb_test::TypedGrid typed = nvdb_test::make_typed_grid(name, type, scale);
         const auto t1 = std::chrono::steady_clock::now();
-        const nanovdb::NanoGrid<float> *grid = handle.grid<float>();
+        const nanovdb::NanoGrid<float> *grid = typed.float_grid.grid<float>();
         if (!grid)
             throw std::runtime_error("openToNanoVDB did not produce a float grid");
 
@@ -125,22 +139,32 @@ int main(int argc, char **argv) {
                 " voxels (limit " + std::to_string(nvdb_test::max_dense_voxels) +
                 "); nothing written");
 
-        nanovdb::io::writeGrid(out_path, handle, codec);
+        if (type == "half") {
+            if (codec != nanovdb::io::Codec::NONE)
+                throw std::invalid_argument("half grids are written raw, without a codec");
+            std::ofstream f(out_path, std::ios::binary);
+            f.write(reinterpret_cast<const char *>(typed.words.data()), std::streamsize(typed.bytes));
+            if (!f.flush())
+                throw std::runtime_error("cannot write \"" + out_path + "\"");
+        } else {
+            nanovdb::io::writeGrid(out_path, typed.handle, codec);
+        }
         if (!dense_path.empty())
-            nvdb_test::write_dense_vol(*grid, dense_path);
+            nvdb_test::write_dense_vol(*grid, dense_path,
+                                       type == "float" ? nullptr : typed.reference());
         const auto t2 = std::chrono::steady_clock::now();
 
         const nanovdb::CoordBBox bbox = grid->indexBBox();
         auto ms = [](auto a, auto b) {
             return std::chrono::duration<double, std::milli>(b - a).count();
         };
-        std::printf("%s: bbox [%d, %d, %d] .. [%d, %d, %d], %llu active voxels, "
+        std::printf("%s (%s): bbox [%d, %d, %d] .. [%d, %d, %d], %llu active voxels, "
                     "%llu bytes in memory, %llu bytes in %s (codec %s%s%s), "
                     "built in %.1f ms, written in %.1f ms\n",
-                    name.c_str(), bbox.min()[0], bbox.min()[1], bbox.min()[2], bbox.max()[0],
+                    name.c_str(), type.c_str(), bbox.min()[0], bbox.min()[1], bbox.min()[2], bbox.max()[0],
                     bbox.max()[1], bbox.max()[2],
                     (unsigned long long) grid->activeVoxelCount(),
-                    (unsigned long long) handle.size(),
+                    (unsigned long long) typed.bytes,
                     (unsigned long long) std::filesystem::file_size(out_path), out_path.c_str(),
                     codec_name.c_str(), dense_path.empty() ? "" : ", dense ",
                     dense_path.c_str(), ms(t0, t1), ms(t1, t2));

@@ -13,7 +13,11 @@
         (coarse_limit > 0) are crossed as one cell with the node's M;
       - the LLVM walk equals the scalar walk bit for bit, step for step, and
         the faithful readers (PNanoVDB's root search, 64-bit child offsets)
-        walk exactly as the plan's fast readers.
+        walk exactly as the plan's fast readers;
+      - the same on Fp8, FpN and Half versions of four grids
+        (tests/typed_grids.h), read by PNanoVDB's per-type readers (the
+        hand walk, written against NanoVDB's float node structs, is left out
+        there).
 */
 
 #define PNANOVDB_C
@@ -31,6 +35,7 @@
 #include <doctest/doctest.h>
 #include <grids.h>
 #include <hand_walk.h>
+#include <typed_grids.h>
 
 #include <nanovdb/util/OpenToNanoVDB.h>
 
@@ -53,6 +58,7 @@ using Handle = nanovdb::GridHandle<nanovdb::HostBuffer>;
 
 struct WalkGrid {
     std::string name;
+    uint32_t grid_type = 1;  ///< NanoVDB's GridType; typed (not 1): no hand walk
     Handle handle;
     std::vector<uint32_t> words;
     loader::ReaderPlan plan;
@@ -61,13 +67,22 @@ struct WalkGrid {
     int32_t lo[3], hi[3]; ///< the index box rays aim at
 };
 
-WalkGrid make_walk_grid(const std::string &name, Handle handle) {
+WalkGrid make_walk_grid(const std::string &name, Handle handle,
+                        const nvdb_test::TypedGrid *typed = nullptr) {
     WalkGrid g;
     g.name = name;
+    uint64_t bytes = handle.size();
+    if (typed) {
+        g.name += " (" + typed->type + ")";
+        g.grid_type = typed->grid_type;
+        g.words = typed->words;
+        bytes = typed->bytes;
+    } else {
+        g.words.resize((handle.size() + 3) / 4);
+        std::memcpy(g.words.data(), handle.data(), handle.size());
+    }
     g.handle = std::move(handle);
-    g.words.resize((g.handle.size() + 3) / 4);
-    std::memcpy(g.words.data(), g.handle.data(), g.handle.size());
-    loader::ValidatedGrid v = loader::validate_float_grid(name, g.words.data(), g.handle.size());
+    loader::ValidatedGrid v = loader::validate_grid(g.name, g.words.data(), bytes);
     g.plan = loader::plan_readers(v);
     g.majorants = loader::node_majorants(v);
     const loader::GridSummary &s = v.summary();
@@ -103,6 +118,11 @@ const std::vector<WalkGrid> &walk_grids() {
                                   "single_voxel", "nonzero_background" })
             out.push_back(make_walk_grid(name, nvdb_test::make_nano_grid(name)));
         out.push_back(make_walk_grid("mixed_tiles", mixed_tiles()));
+        for (const char *name : { "noisy_cloud", "lower_tiles", "upper_tiles", "nonzero_background" })
+            for (const char *type : { "fp8", "fpn", "half" }) {
+                nvdb_test::TypedGrid t = nvdb_test::make_typed_grid(name, type);
+                out.push_back(make_walk_grid(name, nvdb_test::make_nano_grid(name), &t));
+            }
         return out;
     }();
     return grids;
@@ -152,20 +172,35 @@ struct Segment {
     float t0, t1, majorant;
 };
 
+/// Calls fn(std::integral_constant<uint32_t, T>) for a grid type
+template <typename Fn> decltype(auto) with_type(uint32_t grid_type, Fn &&fn) {
+    using std::integral_constant;
+    switch (grid_type) {
+        case 9: return fn(integral_constant<uint32_t, 9>{});
+        case 14: return fn(integral_constant<uint32_t, 14>{});
+        case 16: return fn(integral_constant<uint32_t, 16>{});
+        default: return fn(integral_constant<uint32_t, 1>{});
+    }
+}
+
 /// The scalar walk of one ray
 template <typename Buffer, typename Root>
 std::vector<Segment> walk_scalar(const Buffer &buf, const Root &root,
-                                 const ndr::MajorantGrid<uint32_t> &mg, const Ray &r) {
+                                 const ndr::MajorantGrid<uint32_t> &mg, const Ray &r,
+                                 uint32_t grid_type) {
     using V = dr::Array<float, 3>;
     const V o(r.o[0], r.o[1], r.o[2]), d(r.d[0], r.d[1], r.d[2]);
-    ndr::MajorantWalk<float> w =
-        ndr::walk_begin(buf, root, mg, o, d, r.tmin, r.tmax, r.coarse_limit, true);
-    std::vector<Segment> out;
-    for (int s = 0; s < MAX_STEPS && ndr::walk_valid(w); ++s) {
-        out.push_back({ w.hdda.tmin, w.segment_end(), w.majorant });
-        ndr::walk_advance(buf, root, mg, w, o, d, r.coarse_limit, true);
-    }
-    return out;
+    return with_type(grid_type, [&](auto type) {
+        constexpr uint32_t T = decltype(type)::value;
+        ndr::MajorantWalk<float> w =
+            ndr::walk_begin<T>(buf, root, mg, o, d, r.tmin, r.tmax, r.coarse_limit, true);
+        std::vector<Segment> out;
+        for (int s = 0; s < MAX_STEPS && ndr::walk_valid(w); ++s) {
+            out.push_back({ w.hdda.tmin, w.segment_end(), w.majorant });
+            ndr::walk_advance<T>(buf, root, mg, w, o, d, r.coarse_limit, true);
+        }
+        return out;
+    });
 }
 
 ndr::MajorantGrid<uint32_t> scalar_majorants(const WalkGrid &g) {
@@ -173,11 +208,12 @@ ndr::MajorantGrid<uint32_t> scalar_majorants(const WalkGrid &g) {
                                              std::numeric_limits<float>::infinity(), g.base);
 }
 
-/// PNanoVDB's value at an absolute coordinate
+/// PNanoVDB's value at an absolute coordinate (its per-type readers)
 struct Reference {
     pnanovdb_buf_t buf;
     pnanovdb_root_handle_t root;
-    explicit Reference(const WalkGrid &g) {
+    uint32_t type;
+    explicit Reference(const WalkGrid &g) : type(g.grid_type) {
         buf.data = const_cast<uint32_t *>(g.words.data());
         pnanovdb_grid_handle_t grid = { pnanovdb_address_null() };
         root = pnanovdb_tree_get_root(buf, pnanovdb_grid_get_tree(buf, grid));
@@ -185,8 +221,15 @@ struct Reference {
     float value(int64_t i, int64_t j, int64_t k) const {
         pnanovdb_coord_t ijk = { int32_t(uint32_t(i)), int32_t(uint32_t(j)), int32_t(uint32_t(k)) };
         pnanovdb_uint32_t level;
-        return pnanovdb_read_float(buf, pnanovdb_root_get_value_address_and_level(
-                                            PNANOVDB_GRID_TYPE_FLOAT, buf, root, &ijk, &level));
+        const pnanovdb_address_t a =
+            pnanovdb_root_get_value_address_and_level(type, buf, root, &ijk, &level);
+        switch (type) {
+            case PNANOVDB_GRID_TYPE_FP8: return pnanovdb_root_fp8_read_float(buf, a, &ijk, level);
+            case PNANOVDB_GRID_TYPE_FPN: return pnanovdb_root_fpn_read_float(buf, a, &ijk, level);
+            case PNANOVDB_GRID_TYPE_HALF:
+                return nvdb_test::f16c_to_float(uint16_t(pnanovdb_read_half(buf, a)));
+            default: return pnanovdb_read_float(buf, a);
+        }
     }
 };
 
@@ -217,11 +260,11 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
                 for (const Ray &r : rays) {
                     std::vector<Segment> segs = reader.apply(
                         g.words.data(), [&](const auto &buf, const auto &root) {
-                            return walk_scalar(buf, root, mg, r);
+                            return walk_scalar(buf, root, mg, r, g.grid_type);
                         });
                     std::vector<Segment> segs_faithful = faithful.apply(
                         g.words.data(), [&](const auto &buf, const auto &root) {
-                            return walk_scalar(buf, root, mg, r);
+                            return walk_scalar(buf, root, mg, r, g.grid_type);
                         });
                     if (segs.size() != segs_faithful.size() ||
                         (!segs.empty() && std::memcmp(segs.data(), segs_faithful.data(),
@@ -243,7 +286,7 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
                         if (!(std::fabs(sg.t0 - prev) <= 2e-6f * std::max(1.f, std::fabs(prev))) ||
                             !(sg.t1 >= sg.t0))
                             ++gaps;
-                        if (!coarse) {
+                        if (!coarse && g.grid_type == 1) {
                             const double tm = 0.5 * (double(sg.t0) + double(sg.t1));
                             nanovdb::Coord c;
                             for (int a = 0; a < 3; ++a)
@@ -345,11 +388,14 @@ TEST_CASE("majorant walk: LLVM equals scalar step for step") {
             std::vector<std::vector<Segment>> want(n);
             for (size_t i = 0; i < n; ++i)
                 want[i] = sreader.apply(g.words.data(), [&](const auto &buf, const auto &root) {
-                    return walk_scalar(buf, root, mgs, rays[i]);
+                    return walk_scalar(buf, root, mgs, rays[i], g.grid_type);
                 });
 
-            ndr::MajorantWalk<Float> w = reader.apply(grid_words, [&](const auto &b, const auto &r) {
-                return ndr::walk_begin(b, r, mg, o, d, tmin, tmax, limit, true);
+            ndr::MajorantWalk<Float> w = with_type(g.grid_type, [&](auto type) {
+                return reader.apply(grid_words, [&](const auto &b, const auto &r) {
+                    return ndr::walk_begin<decltype(type)::value>(b, r, mg, o, d, tmin, tmax,
+                                                                  limit, true);
+                });
             });
             size_t mismatches = 0, compared = 0;
             for (int s = 0; s < MAX_STEPS; ++s) {
@@ -384,9 +430,12 @@ TEST_CASE("majorant walk: LLVM equals scalar step for step") {
                 }
                 if (!any)
                     break;
-                reader.apply(grid_words, [&](const auto &b, const auto &r) {
-                    ndr::walk_advance(b, r, mg, w, o, d, limit, ndr::walk_valid(w));
-                    return 0;
+                with_type(g.grid_type, [&](auto type) {
+                    return reader.apply(grid_words, [&](const auto &b, const auto &r) {
+                        ndr::walk_advance<decltype(type)::value>(b, r, mg, w, o, d, limit,
+                                                                 ndr::walk_valid(w));
+                        return 0;
+                    });
                 });
             }
             MESSAGE(g.name, ": ", compared, " segments compared, ", mismatches, " mismatches");

@@ -64,7 +64,7 @@ const std::vector<TestGrid> &test_grids() {
             std::memcpy(g.words.data(), handle.data(), handle.size());
             g.coords = nvdb_test::query_coords(*handle.grid<float>(), QUERY_COUNT, seed++);
             g.plan = loader::plan_readers(
-                loader::validate_float_grid(name, g.words.data(), handle.size()));
+                loader::validate_grid(name, g.words.data(), handle.size()));
             result.push_back(std::move(g));
         }
         return result;
@@ -474,7 +474,7 @@ TEST_CASE("the reader policy picks the fast readers for the test grids (so the f
     // its reads through the plan still equal PNanoVDB's algorithm.
     TestGrid g = leaves_before_lower_nodes(test_grids().front());
     loader::ReaderPlan plan = loader::plan_readers(
-        loader::validate_float_grid("reordered", g.words.data(), g.words.size() * 4));
+        loader::validate_grid("reordered", g.words.data(), g.words.size() * 4));
     CHECK_FALSE(plan.compact_offsets);
     CHECK(plan.root_indexed);
     g.plan = plan;

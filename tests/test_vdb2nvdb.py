@@ -400,11 +400,29 @@ def test17_quantized_output_within_bound(gen, tmp_path, q):
     if not float_size.exists():
         run(gen("multi"), float_size, "--verify", "0")
     assert out.stat().st_size < float_size.stat().st_size
-    # The plugin reads float only, for now: a clear message naming the type
-    mi.set_variant("scalar_rgb")
+    # The file renders: nanovdbvolume reads every quantized grid, and its
+    # values lie within half a quantization step of the float file's: the
+    # grid's value range / (2^bits - 1) / 2, for FpN at most its tolerance
+    # (0.01 for the fog volumes, 0 for "temperature", class unknown), plus
+    # the float rounding of code * quantum + minimum (the converter's bound)
+    mi.set_variant("llvm_ad_rgb")
     mi.file_resolver().prepend(str(BUILD))
-    with pytest.raises(RuntimeError, match="only float grids"):
-        load_nvdb(str(out))
+    rng = np.random.default_rng(17)
+    pts = rng.uniform(0, 1, size=(50_000, 3)).astype(np.float32)
+    for grid in ["density", "ls_sphere", "temperature"]:
+        qv = load_nvdb(str(out), grid=grid, filter_type="nearest")
+        fv = load_nvdb(str(float_size), grid=grid, filter_type="nearest")
+        name = {"fp4": "Fp4", "fp8": "Fp8", "fp16": "Fp16", "fpn": "FpN"}[q]
+        assert f"grid_type = {name}," in str(qv)
+        f = eval_points(fv, pts)
+        diff = np.abs(eval_points(qv, pts) - f)
+        value_range = float(fv.max() - f.min())
+        if q == "fpn":
+            bound = max(0.0 if grid == "temperature" else 0.01, 0.5 * value_range / 65535)
+        else:
+            bound = 0.5 * value_range / (2 ** int(q[2:]) - 1)
+        bound += 8 * np.finfo(np.float32).eps * (max(abs(f.min()), fv.max()) + value_range)
+        assert 0 < diff.max() <= bound, (grid, diff.max(), bound)
 
 
 def test18_quantize_options(gen, tmp_path):

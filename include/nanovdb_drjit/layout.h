@@ -39,6 +39,14 @@ constexpr uint32_t version_major(uint32_t version) { return version >> 21; }
 // ---- Grid types (PNANOVDB_GRID_TYPE_*) ----------------------------------------
 
 static constexpr uint32_t GRID_TYPE_FLOAT = 1;
+static constexpr uint32_t GRID_TYPE_VEC3F = 6;
+static constexpr uint32_t GRID_TYPE_HALF  = 9;
+static constexpr uint32_t GRID_TYPE_FP4   = 13;
+static constexpr uint32_t GRID_TYPE_FP8   = 14;
+static constexpr uint32_t GRID_TYPE_FP16  = 15;
+static constexpr uint32_t GRID_TYPE_FPN   = 16;
+/// PNANOVDB_GRID_TYPE_END: the first value past PNanoVDB 32.4's table
+static constexpr uint32_t GRID_TYPE_END   = 20;
 
 // ---- Map (PNANOVDB_MAP_*) --------------------------------------------------------
 
@@ -94,7 +102,15 @@ static constexpr uint32_t LOWER_OFF_BBOX_MIN  = 0;
 static constexpr uint32_t LOWER_OFF_VALUE_MASK = 32;
 static constexpr uint32_t LOWER_OFF_CHILD_MASK = 544;
 static constexpr uint32_t LEAF_OFF_BBOX_MIN   = 0;
+static constexpr uint32_t LEAF_OFF_BBOX_DIF_AND_FLAGS = 12; ///< bbox dif (3 bytes), flags (top byte)
 static constexpr uint32_t LEAF_OFF_VALUE_MASK = 16;
+
+/// Quantized leaves (Fp4, Fp8, Fp16, FpN; PNANOVDB_LEAF_TABLE_NEG_OFF_*):
+/// fields found by going back from the value table, in bytes. A value is
+/// code * quantum + minimum; FpN keeps log2 of its bit width in flags >> 5.
+static constexpr uint32_t LEAF_TABLE_NEG_OFF_BBOX_DIF_AND_FLAGS = 84;
+static constexpr uint32_t LEAF_TABLE_NEG_OFF_MINIMUM = 16;
+static constexpr uint32_t LEAF_TABLE_NEG_OFF_QUANTUM = 12;
 
 // ---- Node geometry (NanoVDB's 5-4-3 tree) -----------------------------------------
 // An upper node has 32^3 entries of 128^3 voxels, a lower node 16^3 entries
@@ -134,33 +150,112 @@ static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_FLOAT = {
     1056, 1060, 1064, 1068, 1088, 33856,
     80, 84, 88, 92, 96, 2144
 };
+/// ... [PNANOVDB_GRID_TYPE_VEC3F]: 3 floats per value, 16-byte table entries
+static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_VEC3F = {
+    28, 40, 52, 64, 68, 96, 96, 16, 20, 32,
+    8224, 8236, 8248, 8252, 8256, 532544,
+    1056, 1068, 1080, 1084, 1088, 66624,
+    80, 92, 104, 108, 128, 6272
+};
+/// ... [PNANOVDB_GRID_TYPE_HALF]: IEEE binary16 everywhere (tiles too)
+static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_HALF = {
+    28, 30, 32, 36, 40, 64, 16, 8, 20, 32,
+    8224, 8226, 8228, 8232, 8256, 270400,
+    1056, 1058, 1060, 1064, 1088, 33856,
+    80, 82, 84, 88, 96, 1120
+};
+/// ... [PNANOVDB_GRID_TYPE_FP4 / FP8 / FP16 / FPN]: float tiles; leaves hold
+/// minimum, quantum and packed codes (value_stride_bits 0: the table address
+/// is the table's start, the reader finds the code). FpN's leaf_size is the
+/// leaf without its table: FpN leaves differ in size (fpn_leaf_size()).
+static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_FP4 = {
+    28, 32, 36, 40, 44, 64, 0, 8, 20, 32,
+    8224, 8228, 8232, 8236, 8256, 270400,
+    1056, 1060, 1064, 1068, 1088, 33856,
+    88, 90, 92, 94, 96, 352
+};
+static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_FP8 = [] {
+    GridTypeConstants c = GRID_TYPE_CONSTANTS_FP4; c.leaf_size = 608; return c; }();
+static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_FP16 = [] {
+    GridTypeConstants c = GRID_TYPE_CONSTANTS_FP4; c.leaf_size = 1120; return c; }();
+static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_FPN = [] {
+    GridTypeConstants c = GRID_TYPE_CONSTANTS_FP4; c.leaf_size = 96; return c; }();
+
+/// How a type's values are stored (what PNanoVDB's per-type read functions
+/// encode in their names)
+enum class LeafCodec : uint32_t {
+    Float32, ///< float: 32-bit floats everywhere
+    Half,    ///< binary16 everywhere
+    Fixed,   ///< Fp4/Fp8/Fp16: float tiles, leaves of 2^log2_bits-bit codes
+    FpN,     ///< as Fixed, the bit width per leaf (flags >> 5)
+    Vec3f    ///< 3 floats everywhere
+};
+
+/// What the loader and the lookups need to know about a supported type
+struct ValueType {
+    uint32_t grid_type;
+    const char *name;              ///< as the loader's grid_type_name() spells it
+    const GridTypeConstants *constants;
+    LeafCodec codec;
+    uint32_t log2_bits;            ///< Fixed: log2 of the code width (2, 3, 4)
+    uint32_t channels;             ///< 1, or 3 for Vec3f
+};
+
+static constexpr ValueType VALUE_TYPES[] = {
+    { GRID_TYPE_FLOAT, "float", &GRID_TYPE_CONSTANTS_FLOAT, LeafCodec::Float32, 5, 1 },
+    { GRID_TYPE_HALF,  "Half",  &GRID_TYPE_CONSTANTS_HALF,  LeafCodec::Half,    4, 1 },
+    { GRID_TYPE_FP4,   "Fp4",   &GRID_TYPE_CONSTANTS_FP4,   LeafCodec::Fixed,   2, 1 },
+    { GRID_TYPE_FP8,   "Fp8",   &GRID_TYPE_CONSTANTS_FP8,   LeafCodec::Fixed,   3, 1 },
+    { GRID_TYPE_FP16,  "Fp16",  &GRID_TYPE_CONSTANTS_FP16,  LeafCodec::Fixed,   4, 1 },
+    { GRID_TYPE_FPN,   "FpN",   &GRID_TYPE_CONSTANTS_FPN,   LeafCodec::FpN,     0, 1 },
+    { GRID_TYPE_VEC3F, "Vec3f", &GRID_TYPE_CONSTANTS_VEC3F, LeafCodec::Vec3f,   5, 3 },
+};
+
+/// The supported type `grid_type`, or nullptr
+constexpr const ValueType *value_type(uint32_t grid_type) {
+    for (const ValueType &t : VALUE_TYPES)
+        if (t.grid_type == grid_type)
+            return &t;
+    return nullptr;
+}
 
 /// The row of a grid type, at compile time (device code)
-template <uint32_t GridType> struct grid_type_traits;
-template <> struct grid_type_traits<GRID_TYPE_FLOAT> {
-    static constexpr const GridTypeConstants &constants = GRID_TYPE_CONSTANTS_FLOAT;
+template <uint32_t GridType> struct grid_type_traits {
+    static constexpr const ValueType &type = *value_type(GridType);
+    static constexpr const GridTypeConstants &constants = *type.constants;
 };
 
 /// The row of a grid type, at run time (host code); nullptr: not supported
 constexpr const GridTypeConstants *grid_type_constants(uint32_t grid_type) {
-    return grid_type == GRID_TYPE_FLOAT ? &GRID_TYPE_CONSTANTS_FLOAT : nullptr;
+    const ValueType *t = value_type(grid_type);
+    return t ? t->constants : nullptr;
 }
 
+/// Bytes of an FpN leaf whose flags byte is `flags`: the header and 512
+/// codes of 1 << (flags >> 5) bits (1 to 16; widths past 16 are invalid)
+constexpr uint32_t fpn_leaf_size(uint32_t flags) {
+    return GRID_TYPE_CONSTANTS_FPN.leaf_off_table + (64u << (flags >> 5));
+}
+/// The smallest FpN leaf (1-bit codes): the stride of its majorant slots
+static constexpr uint32_t FPN_MIN_LEAF_SIZE = 96 + 64;
+
 // The tables fill their nodes exactly, and every node keeps the alignment
-static_assert(GRID_TYPE_CONSTANTS_FLOAT.upper_off_table +
-              UPPER_TABLE_COUNT * GRID_TYPE_CONSTANTS_FLOAT.table_stride ==
-              GRID_TYPE_CONSTANTS_FLOAT.upper_size);
-static_assert(GRID_TYPE_CONSTANTS_FLOAT.lower_off_table +
-              LOWER_TABLE_COUNT * GRID_TYPE_CONSTANTS_FLOAT.table_stride ==
-              GRID_TYPE_CONSTANTS_FLOAT.lower_size);
-static_assert(GRID_TYPE_CONSTANTS_FLOAT.leaf_off_table +
-              LEAF_TABLE_COUNT * GRID_TYPE_CONSTANTS_FLOAT.value_stride_bits / 8 ==
-              GRID_TYPE_CONSTANTS_FLOAT.leaf_size);
-static_assert(GRID_TYPE_CONSTANTS_FLOAT.upper_size % NODE_ALIGNMENT == 0 &&
-              GRID_TYPE_CONSTANTS_FLOAT.lower_size % NODE_ALIGNMENT == 0 &&
-              GRID_TYPE_CONSTANTS_FLOAT.leaf_size % NODE_ALIGNMENT == 0 &&
-              GRID_TYPE_CONSTANTS_FLOAT.root_size % NODE_ALIGNMENT == 0 &&
-              GRID_TYPE_CONSTANTS_FLOAT.root_tile_size % NODE_ALIGNMENT == 0);
+constexpr bool fills_nodes(const GridTypeConstants &c, uint32_t leaf_value_bits) {
+    return c.upper_off_table + UPPER_TABLE_COUNT * c.table_stride == c.upper_size &&
+           c.lower_off_table + LOWER_TABLE_COUNT * c.table_stride == c.lower_size &&
+           c.leaf_off_table + LEAF_TABLE_COUNT * leaf_value_bits / 8 == c.leaf_size &&
+           c.upper_size % NODE_ALIGNMENT == 0 && c.lower_size % NODE_ALIGNMENT == 0 &&
+           c.leaf_size % NODE_ALIGNMENT == 0 && c.root_size % NODE_ALIGNMENT == 0 &&
+           c.root_tile_size % NODE_ALIGNMENT == 0;
+}
+static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FLOAT, 32));
+static_assert(fills_nodes(GRID_TYPE_CONSTANTS_VEC3F, 96));
+static_assert(fills_nodes(GRID_TYPE_CONSTANTS_HALF, 16));
+static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FP4, 4));
+static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FP8, 8));
+static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FP16, 16));
+static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FPN, 0));
+static_assert(fpn_leaf_size(0) == FPN_MIN_LEAF_SIZE && fpn_leaf_size(4u << 5) == 1120);
 
 // ---- Root keys (host side; the device computes keys in pnanovdb.h) ----------------
 

@@ -185,6 +185,26 @@ template <typename UInt32> struct CellInfo {
     DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_R, lower_m, lower_slot)
 };
 
+/// The bound of a tile value at `address`, whose first word the caller has
+/// read: the value (Half: its low half-word, as tiles are word-aligned),
+/// for Vec3f its largest channel
+template <uint32_t GridType, typename Buffer, typename UInt32>
+DRJIT_INLINE dr::float32_array_t<UInt32> tile_bound(const Buffer &buf, const UInt32 &address,
+                                                    const UInt32 &first_word,
+                                                    const dr::mask_t<UInt32> &active) {
+    using Float = dr::float32_array_t<UInt32>;
+    constexpr LeafCodec codec = grid_type_traits<GridType>::type.codec;
+    if constexpr (codec == LeafCodec::Half) {
+        return half_to_float(UInt32(first_word & 0xffffu));
+    } else if constexpr (codec == LeafCodec::Vec3f) {
+        return dr::maximum(dr::reinterpret_array<Float>(first_word),
+                           dr::maximum(read_float(buf, UInt32(address + 1u), active),
+                                       read_float(buf, UInt32(address + 2u), active)));
+    } else {
+        return dr::reinterpret_array<Float>(first_word);
+    }
+}
+
 /// The traversal from the root down to the lower node of the cell at
 /// absolute `ijk`, for lanes whose kept lower node does not hold it: the
 /// cell if it is a root tile, the background, a thin upper node or an
@@ -227,8 +247,9 @@ CellInfo<UInt32> cell_above_lower(const Buffer &buf, const Root &root,
     UInt32 n = upper_coord_to_offset(ijk);
     Mask has_lower = upper_get_child_mask(buf, upper, n, into_upper);
     Mask upper_tile = into_upper & !has_lower;
-    Float tile_value =
-        read_float(buf, upper_get_table_address<GridType>(upper, n), upper_tile);
+    UInt32 upper_entry = upper_get_table_address<GridType>(upper, n);
+    Float tile_value = tile_bound<GridType>(buf, upper_entry,
+                                            read_uint32(buf, upper_entry, upper_tile), upper_tile);
     out.dim = dr::select(upper_tile, UInt32(128u), out.dim);
     out.bound = dr::select(upper_tile, dr::maximum(tile_value, R_U), out.bound);
 
@@ -261,7 +282,11 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     using Mask = dr::mask_t<Float>;
     using Cell = detail::CellInfo<UInt32>;
     constexpr const GridTypeConstants &c = constants_of<GridType>;
-    const dr::divisor<uint32_t> leaf_words(c.leaf_size / 4);
+    // FpN leaves differ in size: one slot per 160 bytes (majorant_table.h)
+    constexpr uint32_t leaf_slot_words =
+        grid_type_traits<GridType>::type.codec == LeafCodec::FpN ? FPN_MIN_LEAF_SIZE / 4
+                                                                : c.leaf_size / 4;
+    const dr::divisor<uint32_t> leaf_words(leaf_slot_words);
 
     Coord<UInt32> ijk;
     for (int k = 0; k < 3; ++k)
@@ -339,7 +364,7 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     Mask lower_tile = into_brick & !has_leaf;
     UInt32 entry = lower_get_table_address<GridType>(lower, n);
     UInt32 entry_word = read_uint32(buf, entry, into_brick);
-    Float tile_value = dr::reinterpret_array<Float>(entry_word);
+    Float tile_value = detail::tile_bound<GridType>(buf, entry, entry_word, lower_tile);
     LeafHandle<UInt32> leaf{ UInt32(lower.address +
                                     detail::child_delta_from_low(buf, entry, entry_word, has_leaf)) };
     UInt32 leaf_slot = leaf_words(UInt32(leaf.address - g.leaf_begin));

@@ -48,9 +48,15 @@
     when active). The loader has validated every node offset, so reads of
     active lanes stay inside the buffer.
 
-    Only the float grid type (PNANOVDB_GRID_TYPE_FLOAT) is instantiated; the
-    functions take the grid type as a template parameter and read the offsets
-    of its row of layout.h, as PNanoVDB's functions take `grid_type`.
+    The functions take the grid type as a template parameter and read the
+    offsets of its row of layout.h, as PNanoVDB's functions take `grid_type`.
+    Value reads follow PNanoVDB's per-type readers: float (pnanovdb_read_float),
+    Half (pnanovdb_read_half, converted to float here: PNanoVDB's C path
+    returns the raw bits), Fp4/Fp8/Fp16/FpN (pnanovdb_root_fp*_read_float: a
+    float at tiles, code * quantum + minimum in leaves) and Vec3f
+    (pnanovdb_read_vec3f). Half values are 2-byte aligned in leaves: their word
+    address drops the half-word, which the reader takes from the voxel's index
+    n, as PNanoVDB's read_half takes it from the byte address.
 */
 
 #pragma once
@@ -146,6 +152,42 @@ read_float(const Buffer &buf, const UInt32 &address,
            const dr::mask_t<UInt32> &active) {
     return dr::reinterpret_array<dr::float32_array_t<UInt32>>(
         read_uint32(buf, address, active));
+}
+
+/// PNanoVDB: pnanovdb_read_vec3f (three consecutive floats)
+template <typename UInt32, typename Buffer>
+DRJIT_INLINE dr::Array<dr::float32_array_t<UInt32>, 3>
+read_vec3f(const Buffer &buf, const UInt32 &address, const dr::mask_t<UInt32> &active) {
+    return { read_float(buf, address, active), read_float(buf, UInt32(address + 1u), active),
+             read_float(buf, UInt32(address + 2u), active) };
+}
+
+/// IEEE binary16 bits (low 16 bits of `bits`) -> float. Exact for every
+/// value (each half is a float): normals rebias the exponent, subnormals are
+/// m * 2^-24, Inf keeps its sign, NaN its sign and payload made quiet (as
+/// x86's F16C conversion does). PNanoVDB's C path stops at the raw bits; its
+/// HLSL/GLSL paths call f16tof32 / unpackHalf2x16.
+template <typename UInt32>
+DRJIT_INLINE dr::float32_array_t<UInt32> half_to_float(const UInt32 &bits) {
+    using Float = dr::float32_array_t<UInt32>;
+    UInt32 sign = (bits & 0x8000u) << 16, exponent = (bits >> 10) & 0x1fu,
+           mantissa = bits & 0x3ffu;
+    UInt32 normal = ((exponent + 112u) << 23) | (mantissa << 13),
+           special = 0x7f800000u | (mantissa << 13) | dr::select(mantissa != 0u, 0x400000u, 0u);
+    Float subnormal = Float(dr::int32_array_t<UInt32>(mantissa)) * 5.9604644775390625e-8f;
+    Float magnitude = dr::select(exponent == 0u, subnormal,
+                                 dr::reinterpret_array<Float>(
+                                     dr::select(exponent == 31u, special, normal)));
+    return dr::reinterpret_array<Float>(dr::reinterpret_array<UInt32>(magnitude) | sign);
+}
+
+/// PNanoVDB: pnanovdb_read_half, with the half-word given apart: `high`
+/// selects the upper 16 bits of the word at `address`
+template <typename UInt32, typename Buffer>
+DRJIT_INLINE dr::float32_array_t<UInt32>
+read_half(const Buffer &buf, const UInt32 &address, const UInt32 &high,
+          const dr::mask_t<UInt32> &active) {
+    return half_to_float(UInt32(read_uint32(buf, address, active) >> (high << 4)));
 }
 
 /**
@@ -390,13 +432,21 @@ DRJIT_INLINE UInt32 leaf_coord_to_offset(const dr::Array<Int32, 3> &ijk) {
     return ((i & 7u) << 6) | ((j & 7u) << 3) | (k & 7u);
 }
 
-/// PNanoVDB: pnanovdb_leaf_get_table_address (float: 32-bit values)
+/// PNanoVDB: pnanovdb_leaf_get_table_address. In words: a Half value's
+/// address is the word that holds it (read_half takes the half-word from n);
+/// quantized types have stride 0 (the table's start, as in PNanoVDB).
 template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32>
 DRJIT_INLINE UInt32 leaf_get_table_address(const LeafHandle<UInt32> &node,
                                            const UInt32 &n) {
     constexpr const GridTypeConstants &c = constants_of<GridType>;
-    static_assert(c.value_stride_bits == 32, "only 32-bit values are translated");
-    return UInt32(node.address + to_words(c.leaf_off_table) + n);
+    constexpr uint32_t bits = c.value_stride_bits;
+    static_assert(bits % 16 == 0, "values are 0, 16, 32 or 96 bits");
+    if constexpr (bits == 0)
+        return UInt32(node.address + to_words(c.leaf_off_table));
+    else if constexpr (bits % 32 == 0)
+        return UInt32(node.address + to_words(c.leaf_off_table) + n * (bits / 32));
+    else
+        return UInt32(node.address + to_words(c.leaf_off_table) + (n >> 1));
 }
 
 /// PNanoVDB: pnanovdb_leaf_get_value_address
@@ -404,6 +454,43 @@ template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32>
 DRJIT_INLINE UInt32 leaf_get_value_address(const LeafHandle<UInt32> &leaf,
                                            const Coord<UInt32> &ijk) {
     return leaf_get_table_address<GridType>(leaf, leaf_coord_to_offset(ijk));
+}
+
+/**
+ * PNanoVDB: pnanovdb_leaf_fp_read_float. `address` is the leaf's table (the
+ * value address of every voxel of a quantized leaf); the code of voxel n is
+ * the (n mod values per word)-th field of its word. `value_log_bits` (log2 of
+ * the code width) is a constant for Fp4/8/16 and read per leaf for FpN.
+ */
+template <typename UInt32, typename Buffer, typename LogBits>
+DRJIT_INLINE dr::float32_array_t<UInt32>
+leaf_fp_read_float(const Buffer &buf, const UInt32 &address, const Coord<UInt32> &ijk,
+                   const LogBits &value_log_bits, const dr::mask_t<UInt32> &active) {
+    using Float = dr::float32_array_t<UInt32>;
+    UInt32 value_bits = UInt32(1u) << value_log_bits,
+           value_mask = (UInt32(1u) << value_bits) - 1u,
+           values_per_word_bits = UInt32(5u) - value_log_bits,
+           values_per_word_mask = (UInt32(1u) << values_per_word_bits) - 1u;
+    UInt32 n = leaf_coord_to_offset(ijk);
+    Float minimum = read_float(buf, UInt32(address - to_words(LEAF_TABLE_NEG_OFF_MINIMUM)), active),
+          quantum = read_float(buf, UInt32(address - to_words(LEAF_TABLE_NEG_OFF_QUANTUM)), active);
+    UInt32 raw = read_uint32(buf, UInt32(address + (n >> values_per_word_bits)), active);
+    UInt32 code = (raw >> ((n & values_per_word_mask) << value_log_bits)) & value_mask;
+    // PNanoVDB: pnanovdb_uint32_to_float(code) * quantum + minimum, unfused
+    // (a fused multiply-add would round differently from the C reference)
+    Float scaled = Float(dr::int32_array_t<UInt32>(code)) * quantum;
+    return scaled + minimum;
+}
+
+/// PNanoVDB: pnanovdb_leaf_fpn_read_float (the width from the leaf's flags)
+template <typename UInt32, typename Buffer>
+DRJIT_INLINE dr::float32_array_t<UInt32>
+leaf_fpn_read_float(const Buffer &buf, const UInt32 &address, const Coord<UInt32> &ijk,
+                    const dr::mask_t<UInt32> &active) {
+    UInt32 bbox_dif_and_flags = read_uint32(
+        buf, UInt32(address - to_words(LEAF_TABLE_NEG_OFF_BBOX_DIF_AND_FLAGS)), active);
+    UInt32 flags = bbox_dif_and_flags >> 24;
+    return leaf_fp_read_float(buf, address, ijk, UInt32(flags >> 5), active);
 }
 
 // ---------------------------------------------------------------------------
@@ -483,18 +570,61 @@ DRJIT_INLINE UInt32 root_get_value_address(const Buffer &buf,
     return root_get_value_address_and_level<GridType>(buf, root, ijk, active).address;
 }
 
+// ---------------------------------------------------------------------------
+//  Reading a value at its address and level
+// ---------------------------------------------------------------------------
+
 /**
- * The value at `ijk` (PNanoVDB: pnanovdb_root_get_value_address followed by
- * pnanovdb_read_float). Values outside the tree are the background, as in
- * every VDB. Inactive lanes return 0.
+ * The scalar value at a value address and level of voxel `ijk`, read as the
+ * type's PNanoVDB reader does: pnanovdb_read_float (float);
+ * pnanovdb_read_half (Half, every level); pnanovdb_root_fp4/fp8/fp16/fpn_read_float
+ * (a float unless level == 0, where the leaf's code is decoded). Inactive
+ * lanes return 0.
+ */
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename UInt32>
+DRJIT_INLINE dr::float32_array_t<UInt32>
+root_read_float(const Buffer &buf, const UInt32 &address, const UInt32 &level,
+                const Coord<UInt32> &ijk, const dr::mask_t<UInt32> &active) {
+    constexpr const ValueType &t = grid_type_traits<GridType>::type;
+    static_assert(t.channels == 1, "a scalar type");
+    using Mask = dr::mask_t<UInt32>;
+    if constexpr (t.codec == LeafCodec::Float32) {
+        return read_float(buf, address, active);
+    } else if constexpr (t.codec == LeafCodec::Half) {
+        UInt32 high = dr::select(level == LEVEL_LEAF, leaf_coord_to_offset(ijk) & 1u, 0u);
+        return read_half(buf, address, high, active);
+    } else {
+        Mask in_leaf = active & (level == LEVEL_LEAF);
+        dr::float32_array_t<UInt32> leaf_value;
+        if constexpr (t.codec == LeafCodec::Fixed)
+            leaf_value = leaf_fp_read_float(buf, address, ijk, t.log2_bits, in_leaf);
+        else
+            leaf_value = leaf_fpn_read_float(buf, address, ijk, in_leaf);
+        return dr::select(in_leaf, leaf_value, read_float(buf, address, active & !in_leaf));
+    }
+}
+
+/// The 3-vector at a value address (Vec3f: three floats at every level)
+template <uint32_t GridType, typename Buffer, typename UInt32>
+DRJIT_INLINE dr::Array<dr::float32_array_t<UInt32>, 3>
+root_read_vec3f(const Buffer &buf, const UInt32 &address, const dr::mask_t<UInt32> &active) {
+    static_assert(grid_type_traits<GridType>::type.codec == LeafCodec::Vec3f, "a Vec3f grid");
+    return read_vec3f(buf, address, active);
+}
+
+/**
+ * The value at `ijk` (PNanoVDB: pnanovdb_root_get_value_address_and_level
+ * followed by the type's reader). Values outside the tree are the
+ * background, as in every VDB. Inactive lanes return 0.
  */
 template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
           typename UInt32 = decltype(Root::address)>
 DRJIT_INLINE dr::float32_array_t<UInt32>
 root_get_value(const Buffer &buf, const Root &root,
                const Coord<UInt32> &ijk, const dr::mask_t<UInt32> &active = true) {
-    return read_float(buf, root_get_value_address<GridType>(buf, root, ijk, active),
-                      active);
+    AddressAndLevel<UInt32> al =
+        root_get_value_address_and_level<GridType>(buf, root, ijk, active);
+    return root_read_float<GridType>(buf, al.address, al.level, ijk, active);
 }
 
 } // namespace nanovdb_drjit

@@ -21,6 +21,7 @@
 #include <nanovdb_drjit/pnanovdb.h>
 
 #include <tuple>
+#include <type_traits>
 
 #include <drjit/if_stmt.h>
 
@@ -62,17 +63,25 @@ LowerOrValue<UInt32> root_get_lower(const Buffer &buf, const Root &root,
     return { lower.address, has_lower, address, level };
 }
 
+/// The value addresses and levels of a stencil's 8 corners
+template <typename UInt32> struct StencilAddresses {
+    dr::Array<UInt32, 8> address, level;
+};
+
 /**
- * Value addresses of the 8 corners ijk0 + (i, j, k), i, j, k in {0, 1}, in the
- * order corner = i + 2 j + 4 k (x fastest, as Dr.Jit's texture). Each address
- * equals root_get_value_address(buf, root, ijk0 + (i, j, k)).
+ * Value addresses and levels of the 8 corners ijk0 + (i, j, k), i, j, k in
+ * {0, 1}, in the order corner = i + 2 j + 4 k (x fastest, as Dr.Jit's
+ * texture). Each equals root_get_value_address_and_level(buf, root, ijk0 +
+ * (i, j, k)). The levels are what the quantized and half readers need
+ * (root_read_float); WithLevel = false leaves them out (float grids).
  */
-template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
-          typename UInt32 = decltype(Root::address)>
-dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &root,
-                                                const Coord<UInt32> &ijk0,
-                                                const dr::mask_t<UInt32> &active) {
+template <uint32_t GridType = GRID_TYPE_FLOAT, bool WithLevel = true, typename Buffer,
+          typename Root, typename UInt32 = decltype(Root::address)>
+StencilAddresses<UInt32> root_get_stencil(const Buffer &buf, const Root &root,
+                                          const Coord<UInt32> &ijk0,
+                                          const dr::mask_t<UInt32> &active) {
     using Mask = dr::mask_t<UInt32>;
+    using Addresses = dr::Array<UInt32, 8>;
 
     LowerOrValue<UInt32> base = root_get_lower<GridType>(buf, root, ijk0, active);
     LowerHandle<UInt32> lower{ base.lower };
@@ -87,7 +96,7 @@ dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &r
         stay_lower[k] = (ijk0[k] & 127) != 127;
     }
 
-    dr::Array<UInt32, 8> result;
+    Addresses result, levels = dr::zeros<Addresses>();
     Mask far[8], any_far = false;
     for (uint32_t corner = 0; corner < 8; ++corner) {
         uint32_t bit[3] = { corner & 1u, (corner >> 1) & 1u, (corner >> 2) & 1u };
@@ -109,7 +118,11 @@ dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &r
         address = dr::select(via_lower, al.address, address);
         // Corner 0 stopped above the lower level: that tile (or the
         // background) covers the whole 128^3 block, this corner included
-        result[corner] = dr::select(in_lower & !base.has_lower, base.address, address);
+        Mask above = in_lower & !base.has_lower;
+        result[corner] = dr::select(above, base.address, address);
+        if constexpr (WithLevel)
+            levels[corner] = dr::select(above, base.level,
+                                        dr::select(via_lower, al.level, UInt32(LEVEL_LEAF)));
 
         far[corner] = active & !in_lower;
         any_far |= far[corner];
@@ -117,34 +130,53 @@ dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &r
 
     // Corners in another 128^3 block: full traversals, in one conditional
     // that the JIT backends skip for every packet of lanes without any
-    auto traverse_far = [buf, root, ijk0](const dr::Array<UInt32, 8> &addresses,
-                                          const dr::Array<Mask, 8> &far_) {
-        dr::Array<UInt32, 8> out = addresses;
+    using State = std::conditional_t<WithLevel, dr::Array<Addresses, 2>, Addresses>;
+    auto traverse_far = [buf, root, ijk0](const State &state, const dr::Array<Mask, 8> &far_) {
+        State out = state;
         for (uint32_t corner = 1; corner < 8; ++corner) {
             Coord<UInt32> ijk =
                 coord_add<UInt32>(ijk0, corner & 1u, (corner >> 1) & 1u, (corner >> 2) & 1u);
-            out[corner] = dr::select(
-                far_[corner],
-                root_get_value_address<GridType>(buf, root, ijk, far_[corner]),
-                out[corner]);
+            AddressAndLevel<UInt32> al =
+                root_get_value_address_and_level<GridType>(buf, root, ijk, far_[corner]);
+            if constexpr (WithLevel) {
+                out[0][corner] = dr::select(far_[corner], al.address, out[0][corner]);
+                out[1][corner] = dr::select(far_[corner], al.level, out[1][corner]);
+            } else {
+                out[corner] = dr::select(far_[corner], al.address, out[corner]);
+            }
         }
         return out;
     };
     dr::Array<Mask, 8> far_mask;
     for (uint32_t corner = 0; corner < 8; ++corner)
         far_mask[corner] = far[corner];
+    State state;
+    if constexpr (WithLevel)
+        state = State(result, levels);
+    else
+        state = result;
     if constexpr (dr::is_jit_v<UInt32>) {
-        result = dr::if_stmt(
-            std::make_tuple(result, far_mask), any_far, traverse_far,
-            [](const dr::Array<UInt32, 8> &addresses, const dr::Array<Mask, 8> &) {
-                return addresses;
-            },
+        state = dr::if_stmt(
+            std::make_tuple(state, far_mask), any_far, traverse_far,
+            [](const State &s, const dr::Array<Mask, 8> &) { return s; },
             "nanovdb_stencil_far_corners");
     } else {
         if (any_far)
-            result = traverse_far(result, far_mask);
+            state = traverse_far(state, far_mask);
     }
-    return result;
+    if constexpr (WithLevel)
+        return { state[0], state[1] };
+    else
+        return { state, levels };
+}
+
+/// The 8 corners' value addresses alone (root_get_stencil without levels)
+template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
+          typename UInt32 = decltype(Root::address)>
+dr::Array<UInt32, 8> root_get_stencil_addresses(const Buffer &buf, const Root &root,
+                                                const Coord<UInt32> &ijk0,
+                                                const dr::mask_t<UInt32> &active) {
+    return root_get_stencil<GridType, false>(buf, root, ijk0, active).address;
 }
 
 } // namespace nanovdb_drjit

@@ -39,6 +39,8 @@ struct GridEntry {
 
 /// Human name of a NanoVDB GridType value ("float", "Vec3f", "Fp16", ...)
 std::string grid_type_name(uint32_t grid_type);
+/// "float, Half, Fp4, Fp8, Fp16, FpN, Vec3f": the types a grid may have
+std::string supported_grid_types();
 
 /// `0: "density" (float), 1: "temperature" (float)`
 std::string describe_grids(const std::vector<GridEntry> &grids);

@@ -1,7 +1,7 @@
 // nanovdb_loader/load.h -- the one decode path from a file entry to a grid
 // that the traversal can read:
 //
-//   read_grid (container.h) -> validate_float_grid (validation.h)
+//   read_grid (container.h) -> validate_grid (validation.h)
 //   -> apply_value_policy (values.h) -> plan_readers (reader_policy.h)
 //
 // The plugin runs it into the memory the backend will own, the fuzzer into a

@@ -1,6 +1,6 @@
 // nanovdb_loader/validation.h -- is this buffer a grid the traversal can trust?
 //
-// validate_float_grid() checks a decoded grid buffer so that the PNanoVDB
+// validate_grid() checks a decoded grid buffer so that the PNanoVDB
 // traversal (root -> upper -> lower -> leaf) of any coordinate never leaves
 // it, and summarises it in the same pass: its header fields (GridSummary) and
 // every value a lookup can return (ValueStats). Its result, ValidatedGrid, is
@@ -9,8 +9,11 @@
 // values are read exactly once here.
 //
 // What is required:
-//  * magic "NanoVDB0"/"NanoVDB1", major version 32, grid type float (the
-//    types with a row in layout.h), GridData.mGridSize within the buffer;
+//  * magic "NanoVDB0"/"NanoVDB1", major version 32, a supported grid type
+//    (layout.h's VALUE_TYPES: float, half, fp4, fp8, fp16, fpn, vec3f),
+//    GridData.mGridSize within the buffer;
+//  * FpN leaves: a code width of 1 to 16 bits (flags >> 5 at most 4); the
+//    leaves, each as long as its width makes it, fill the leaf array;
 //  * the grid/tree header, the root with its tile table and the three node
 //    arrays inside the grid, 32-byte aligned and disjoint (NanoVDB writes them
 //    back to back; overlapping regions would let one node's bytes be read as
@@ -25,7 +28,9 @@
 // upper/lower table entries whose child bit is 0, and all 512 values of
 // every leaf (active or not) -- every value a lookup can return, plus values
 // in nodes that no root tile reaches (a lookup never returns those, but they
-// bound max(), so they are counted too). Order (for "first"): background,
+// bound max(), so they are counted too). Quantized and half values are
+// decoded first (value_codec.h), as lookups decode them; a Vec3f value
+// counts as its three floats. Order (for "first"): background,
 // root tiles in table order, upper nodes, lower nodes, leaves, each in array
 // order, entries in table order: the order of the bytes in a NanoVDB-written
 // buffer.
@@ -54,6 +59,7 @@ struct GridSummary {
     double   voxel_size[3] = {};
     uint32_t node_count[3] = {};           ///< leaf, lower, upper
     uint64_t node_begin[3] = {};           ///< byte offset of each node array (leaf, lower, upper)
+    uint64_t node_end[3] = {};             ///< ... and of its end (FpN leaves differ in size)
     uint64_t active_voxel_count = 0;
 };
 
@@ -72,16 +78,24 @@ struct ValueStats {
     uint64_t posinf_count = 0;   ///< +Inf
     uint64_t neginf_count = 0;   ///< -Inf
     uint64_t negative_count = 0; ///< finite and < 0 (-0.0 is not negative)
-    /// Byte offsets in the buffer of the first NaN, infinite and negative
-    /// value, in the order above; NONE if there is none
+    /// Where the first NaN, infinite and negative value sit, in the order
+    /// above; NONE if there is none. A byte offset in the buffer for values
+    /// outside leaves; leaf_value_key(leaf index, n) for leaf values (a
+    /// quantized value has no byte of its own). values.h's locate_value()
+    /// turns either into a voxel.
     uint64_t first_nan = NONE, first_inf = NONE, first_negative = NONE;
+
+    static constexpr uint64_t LEAF_VALUE = uint64_t(1) << 63;
+    static uint64_t leaf_value_key(uint64_t leaf, uint32_t n) {
+        return LEAF_VALUE | (leaf << 9) | n;
+    }
 
     uint64_t inf_count() const { return posinf_count + neginf_count; }
     bool all_finite() const { return nan_count == 0 && inf_count() == 0; }
 };
 
 /**
- * A grid buffer that validate_float_grid() accepted. It does not own the
+ * A grid buffer that validate_grid() accepted. It does not own the
  * bytes: it is a view of the caller's buffer, valid while that buffer lives,
  * and the values may change only through sanitize_values() (values.h),
  * which keeps the statistics true.
@@ -103,9 +117,18 @@ public:
     /// node holds one value and cross it whole
     const std::vector<float> &leaf_min() const { return m_leaf_min; }
 
+    /// Byte offset of leaf i (leaf array order)
+    uint64_t leaf_byte(uint64_t i) const {
+        return m_leaf_offsets.empty() ? m_summary.node_begin[0] + i * m_leaf_size
+                                      : m_leaf_offsets[size_t(i)];
+    }
+    /// Index of the leaf whose bytes contain byte offset `byte` (inside the
+    /// leaf array)
+    uint64_t leaf_containing(uint64_t byte) const;
+
 private:
-    friend ValidatedGrid validate_float_grid(const std::string &, void *, uint64_t);
-    friend ValidatedGrid validate_float_grid(const std::string &, const void *, uint64_t);
+    friend ValidatedGrid validate_grid(const std::string &, void *, uint64_t);
+    friend ValidatedGrid validate_grid(const std::string &, const void *, uint64_t);
     friend struct ValueRewriter;
     ValidatedGrid() = default;
 
@@ -116,14 +139,16 @@ private:
     GridSummary m_summary;
     ValueStats m_values;
     std::vector<float> m_leaf_min, m_leaf_max;
+    uint64_t m_leaf_size = 0;             ///< fixed leaf size (0: FpN)
+    std::vector<uint64_t> m_leaf_offsets; ///< FpN only: each leaf's byte offset
 };
 
-/// Validates a float grid buffer (its first grid, when it holds several) and
+/// Validates a grid buffer (its first grid, when it holds several) and
 /// summarises it; throws Error, naming `path` and the problem. `data` must be
 /// 4-byte aligned (the traversal reads 32-bit words).
-ValidatedGrid validate_float_grid(const std::string &path, void *data, uint64_t bytes);
+ValidatedGrid validate_grid(const std::string &path, void *data, uint64_t bytes);
 
 /// The same for a read-only buffer: sanitize_values() refuses the result.
-ValidatedGrid validate_float_grid(const std::string &path, const void *data, uint64_t bytes);
+ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t bytes);
 
 } // namespace nanovdb_loader

@@ -32,12 +32,13 @@ struct ValueLocation {
     uint32_t level = 4;
     int32_t  ijk[3] = { 0, 0, 0 }; ///< voxel, or the tile's minimum voxel
     uint64_t byte = 0;             ///< byte offset of the value in the grid buffer
+                                   ///< (quantized leaves: of their code table)
     bool     reachable = true;     ///< false: in a node that no root tile reaches
 };
 
-/// The location of the value at byte offset `byte` (one that ValueStats
-/// counts, e.g. ValueStats::first_nan). O(internal nodes).
-ValueLocation locate_value(const ValidatedGrid &grid, uint64_t byte);
+/// The location of a value that ValueStats counts, from its key (e.g.
+/// ValueStats::first_nan: a byte offset, or a leaf value key). O(internal nodes).
+ValueLocation locate_value(const ValidatedGrid &grid, uint64_t key);
 
 /// "voxel (1, -2, 3)", "lower-node tile (8^3 voxels) at (8, 0, 0)",
 /// "upper-node tile (128^3 voxels) at ...", "root tile (4096^3 voxels) at
@@ -88,7 +89,11 @@ struct SanitizeResult {
 ///   -Inf      -> 0 with clamp_negative, else the lowest finite value;
 ///   negative  -> 0 with clamp_negative (a density cannot be negative; a
 ///                negative majorant breaks tracking), else kept.
-/// One pass; grid.values() describes the new values afterwards.
+/// Half values are written back as halves. A quantized leaf (Fp4/8/16/FpN)
+/// holding an invalid value is encoded again, at its code width, from its
+/// repaired values: minimum, quantum = (max - min) / (2^bits - 1), codes
+/// rounded to nearest; its other values move by at most quantum / 2.
+/// One pass; grid.values() describes the new values afterwards (as decoded).
 SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &options = {});
 
 /// The plugin's invalid_values setting

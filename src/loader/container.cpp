@@ -347,6 +347,13 @@ std::string grid_type_name(uint32_t grid_type) {
     return names[grid_type];
 }
 
+std::string supported_grid_types() {
+    std::string s;
+    for (const layout::ValueType &t : layout::VALUE_TYPES)
+        s += std::string(s.empty() ? "" : ", ") + t.name;
+    return s;
+}
+
 /// `0: "density" (float), 1: "temperature" (float)`
 std::string describe_grids(const std::vector<GridEntry> &grids) {
     std::string s;
@@ -414,8 +421,9 @@ std::vector<GridEntry> list_grids(const std::string &path) {
     return detail::parse_segments(path, f); // throws, naming the version found
 }
 
-/// Chooses a grid: empty selector -> first float grid; otherwise a name, or
-/// failing that a non-negative decimal index. Only float grids are accepted.
+/// Chooses a grid: empty selector -> the first grid of a supported type;
+/// otherwise a name, or failing that a non-negative decimal index. Only the
+/// supported types (layout.h's VALUE_TYPES) are accepted.
 const GridEntry &select_grid(const std::string &path,
                                     const std::vector<GridEntry> &grids,
                                     const std::string &selector) {
@@ -425,9 +433,10 @@ const GridEntry &select_grid(const std::string &path,
     size_t index = 0;
     if (selector.empty()) {
         for (size_t i = 0; i < grids.size(); ++i)
-            if (grids[i].grid_type == layout::GRID_TYPE_FLOAT) return grids[i];
-        detail::fail(path, "no float grid in the file (only float grids are supported); "
-                           "the file holds: " + describe_grids(grids));
+            if (layout::value_type(grids[i].grid_type)) return grids[i];
+        detail::fail(path, "no grid of a supported type in the file (supported types: " +
+                           supported_grid_types() + "); the file holds: " +
+                           describe_grids(grids));
     }
     for (size_t i = 0; i < grids.size() && !chosen; ++i)
         if (grids[i].name == selector) { chosen = &grids[i]; index = i; }
@@ -443,10 +452,11 @@ const GridEntry &select_grid(const std::string &path,
     if (!chosen)
         detail::fail(path, "grid \"" + selector + "\" not found (neither a grid name nor "
                            "a valid index); the file holds: " + describe_grids(grids));
-    if (chosen->grid_type != layout::GRID_TYPE_FLOAT)
+    if (!layout::value_type(chosen->grid_type))
         detail::fail(path, detail::entry_label(index, chosen->name) + " has type " +
                                grid_type_name(chosen->grid_type) +
-                               ", but only float grids are supported (supported types: float)");
+                               ", which is not supported (supported types: " +
+                               supported_grid_types() + ")");
     return *chosen;
 }
 

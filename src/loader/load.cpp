@@ -17,7 +17,7 @@ DecodedGrid decode_grid(const std::string &path, const GridEntry &entry, void *d
     std::memset(static_cast<uint8_t *>(dst) + entry.grid_size, 0,
                 size_t(dst_bytes - entry.grid_size));
     read_grid(path, entry, dst);
-    DecodedGrid d{ validate_float_grid(path, dst, entry.grid_size), {}, {} };
+    DecodedGrid d{ validate_grid(path, dst, entry.grid_size), {}, {} };
     d.warnings = apply_value_policy(d.grid, entry.name, policy);
     d.plan = plan_readers(d.grid);
     return d;

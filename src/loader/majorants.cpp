@@ -4,6 +4,7 @@
 #include <nanovdb_loader/majorants.h>
 
 #include "detail.h"
+#include "value_codec.h"
 
 #include <algorithm>
 #include <climits>
@@ -37,8 +38,8 @@ bool entry_range(const int64_t origin[3], uint32_t log2dim, uint32_t log2entry,
 class BoxMax {
 public:
     BoxMax(const ValidatedGrid &grid, const IndexBox &box)
-        : m_grid(grid), m_box(box), m_buf(grid.data()),
-          m_c(*layout::grid_type_constants(grid.summary().grid_type)) {}
+        : m_grid(grid), m_box(box), m_buf(grid.data()), m_codec(grid.summary().grid_type),
+          m_c(m_codec.constants()) {}
 
     float run() {
         const GridSummary &s = m_grid.summary();
@@ -63,7 +64,7 @@ public:
             ++covered;
             const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
             if (child == 0)
-                include(load<float>(m_buf + tile + m_c.root_tile_off_value));
+                include(m_codec.tile_bound(m_buf + tile + m_c.root_tile_off_value));
             else
                 internal(2, uint64_t(int64_t(root) + child), origin);
         }
@@ -74,7 +75,7 @@ public:
             blocks *= uint64_t((int64_t(m_box.hi[a]) >> layout::ROOT_TILE_LOG2) -
                                (int64_t(m_box.lo[a]) >> layout::ROOT_TILE_LOG2) + 1);
         if (covered < blocks)
-            include(load<float>(m_buf + root + m_c.root_off_background));
+            include(m_codec.tile_bound(m_buf + root + m_c.root_off_background));
         return m_any ? m_max : std::numeric_limits<float>::quiet_NaN();
     }
 
@@ -105,7 +106,7 @@ private:
                     const bool child =
                         (load<uint32_t>(m_buf + node + mask_off + 4 * (e >> 5)) >> (e & 31)) & 1u;
                     if (!child) {
-                        include(load<float>(m_buf + entry));
+                        include(m_codec.tile_bound(m_buf + entry));
                         continue;
                     }
                     const int64_t sub[3] = { origin[0] + (i << log2entry),
@@ -123,23 +124,22 @@ private:
         int64_t first[3], last[3];
         if (!entry_range(origin, layout::LEAF_LOG2_DIM, 0, m_box, first, last))
             return;
-        const GridSummary &s = m_grid.summary();
         const bool whole = first[0] == 0 && first[1] == 0 && first[2] == 0 && last[0] == 7 &&
                            last[1] == 7 && last[2] == 7;
         if (whole) {
-            include(m_grid.leaf_max()[size_t((node - s.node_begin[0]) / m_c.leaf_size)]);
+            include(m_grid.leaf_max()[size_t(m_grid.leaf_containing(node))]);
             return;
         }
         for (int64_t i = first[0]; i <= last[0]; ++i)
             for (int64_t j = first[1]; j <= last[1]; ++j)
                 for (int64_t k = first[2]; k <= last[2]; ++k)
-                    include(load<float>(m_buf + node + m_c.leaf_off_table +
-                                        4 * uint64_t((i << 6) | (j << 3) | k)));
+                    include(m_codec.leaf_bound(m_buf + node, uint32_t((i << 6) | (j << 3) | k)));
     }
 
     const ValidatedGrid &m_grid;
     const IndexBox m_box;
     const uint8_t *m_buf;
+    const detail::ValueCodec m_codec;
     const layout::GridTypeConstants &m_c;
     float m_max = 0.f;
     bool m_any = false;

@@ -6,6 +6,7 @@
 #include <nanovdb_loader/majorants.h>
 
 #include "detail.h"
+#include "value_codec.h"
 
 #include <algorithm>
 #include <cstring>
@@ -23,7 +24,7 @@ public:
     MeanBound(const ValidatedGrid &grid, const NodeMajorants &maj, const IndexBox &box,
               float clamp)
         : m_grid(grid), m_buf(grid.data()), m_s(grid.summary()),
-          m_c(*layout::grid_type_constants(m_s.grid_type)), m_t(maj.layout),
+          m_codec(m_s.grid_type), m_c(m_codec.constants()), m_t(maj.layout),
           m_v(maj.values), m_box(box), m_clamp(clamp) {}
 
     double run() {
@@ -101,7 +102,7 @@ private:
                  (n & 31)) & 1u)
                 lower(uint64_t(int64_t(node) + load<int64_t>(m_buf + e)), eo);
             else
-                add(std::max(load<float>(m_buf + e), m_v[slot + 1]), vol);
+                add(std::max(m_codec.tile_bound(m_buf + e), m_v[slot + 1]), vol);
         }
     }
 
@@ -133,9 +134,9 @@ private:
             if ((load<uint32_t>(m_buf + node + layout::LOWER_OFF_CHILD_MASK + 4 * (n >> 5)) >>
                  (n & 31)) & 1u) {
                 const uint64_t leaf = uint64_t(int64_t(node) + load<int64_t>(m_buf + e));
-                add(m_v[size_t((leaf - m_s.node_begin[0]) / m_c.leaf_size)], vol);
+                add(m_v[m_t.leaf_slot(uint32_t(leaf / 4))], vol);
             } else {
-                add(std::max(load<float>(m_buf + e), std::min(R, brick)), vol);
+                add(std::max(m_codec.tile_bound(m_buf + e), std::min(R, brick)), vol);
             }
         }
     }
@@ -143,6 +144,7 @@ private:
     const ValidatedGrid &m_grid;
     const uint8_t *m_buf;
     const GridSummary &m_s;
+    const detail::ValueCodec m_codec;
     const layout::GridTypeConstants &m_c;
     const nanovdb_drjit::MajorantTableLayout &m_t;
     const std::vector<float> &m_v;

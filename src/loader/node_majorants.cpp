@@ -13,6 +13,7 @@
 #include <nanovdb_loader/majorants.h>
 
 #include "detail.h"
+#include "value_codec.h"
 
 #include <algorithm>
 #include <cstring>
@@ -60,12 +61,14 @@ class Builder {
 public:
     Builder(const ValidatedGrid &grid)
         : m_grid(grid), m_buf(grid.data()), m_s(grid.summary()),
-          m_c(*layout::grid_type_constants(m_s.grid_type)),
+          m_codec(m_s.grid_type), m_c(m_codec.constants()),
           m_root(uint64_t(m_s.root_word) * 4) {
         m_out.layout = nanovdb_drjit::MajorantTableLayout::make(
-            m_s.node_begin, m_s.node_count, m_s.root_word, m_c.root_size, m_s.root_tile_count);
+            m_s.node_begin, m_s.node_end, m_s.node_count, m_s.root_word, m_c.root_size,
+            m_s.root_tile_count,
+            m_codec.variable_leaf_size() ? layout::FPN_MIN_LEAF_SIZE : m_c.leaf_size);
         m_out.values.assign(m_out.layout.size, kNone);
-        m_background = load<float>(m_buf + m_root + m_c.root_off_background);
+        m_background = m_codec.tile_bound(m_buf + m_root + m_c.root_off_background);
     }
 
     NodeMajorants run() {
@@ -80,7 +83,7 @@ public:
             if (child != 0) {
                 e = upper(uint64_t(int64_t(m_root) + child), o);
             } else {
-                e = start(load<float>(m_buf + tile + m_c.root_tile_off_value));
+                e = start(m_codec.tile_bound(m_buf + tile + m_c.root_tile_off_value));
                 ring(2, o, e);
             }
             raise(m_out.values[m_out.layout.tile_slot + t], e);
@@ -124,7 +127,7 @@ private:
         const uint64_t tile = it->second;
         const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
         if (child == 0)
-            return { -1, 0, load<float>(m_buf + tile + m_c.root_tile_off_value) };
+            return { -1, 0, m_codec.tile_bound(m_buf + tile + m_c.root_tile_off_value) };
         const uint64_t up = uint64_t(int64_t(m_root) + child);
         if (level == 2)
             return { 2, up, 0.f };
@@ -133,7 +136,7 @@ private:
                             ((uint32_t(ijk[2]) & 4095u) >> 7);
         const uint64_t eu = up + m_c.upper_off_table + uint64_t(nu) * m_c.table_stride;
         if (!child_bit(up, layout::UPPER_OFF_CHILD_MASK, nu))
-            return { -1, 0, load<float>(m_buf + eu) };
+            return { -1, 0, m_codec.tile_bound(m_buf + eu) };
         const uint64_t lo = uint64_t(int64_t(up) + load<int64_t>(m_buf + eu));
         if (level == 1)
             return { 1, lo, 0.f };
@@ -142,14 +145,14 @@ private:
                             ((uint32_t(ijk[2]) & 127u) >> 3);
         const uint64_t el = lo + m_c.lower_off_table + uint64_t(nl) * m_c.table_stride;
         if (!child_bit(lo, layout::LOWER_OFF_CHILD_MASK, nl))
-            return { -1, 0, load<float>(m_buf + el) };
+            return { -1, 0, m_codec.tile_bound(m_buf + el) };
         return { 0, uint64_t(int64_t(lo) + load<int64_t>(m_buf + el)), 0.f };
     }
 
     // ---- Maxima of regions and of their layers ----------------------------------
 
     size_t leaf_index(uint64_t node) const {
-        return size_t((node - m_s.node_begin[0]) / m_c.leaf_size);
+        return size_t(m_grid.leaf_containing(node));
     }
     size_t lower_index(uint64_t node) const {
         return size_t((node - m_s.node_begin[1]) / m_c.lower_size);
@@ -177,7 +180,7 @@ private:
                         std::tie(lo, hi) =
                             child_range(uint64_t(int64_t(node) + load<int64_t>(m_buf + e)));
                     } else {
-                        lo = hi = load<float>(m_buf + e);
+                        lo = hi = m_codec.tile_bound(m_buf + e);
                     }
                     lower_to(mins[i], lo);
                     raise(maxs[i], hi);
@@ -233,7 +236,7 @@ private:
                 for (uint32_t k = lo[2]; k <= hi[2]; ++k) {
                     const uint32_t n = (i << (2 * log2dim)) | (j << log2dim) | k;
                     if (c.level == 0) {
-                        raise(m, load<float>(m_buf + c.node + m_c.leaf_off_table + 4 * n));
+                        raise(m, m_codec.leaf_bound(m_buf + c.node, n));
                         continue;
                     }
                     const bool upper = c.level == 2;
@@ -241,7 +244,7 @@ private:
                                        uint64_t(n) * m_c.table_stride;
                     if (!child_bit(c.node, upper ? layout::UPPER_OFF_CHILD_MASK
                                                  : layout::LOWER_OFF_CHILD_MASK, n)) {
-                        raise(m, load<float>(m_buf + e));
+                        raise(m, m_codec.tile_bound(m_buf + e));
                         continue;
                     }
                     const Cover below{ c.level - 1,
@@ -296,7 +299,7 @@ private:
                 raise(M, lower(uint64_t(int64_t(node) + load<int64_t>(m_buf + e)), eo));
                 continue;
             }
-            const float v = start(load<float>(m_buf + e));
+            const float v = start(m_codec.tile_bound(m_buf + e));
             float r = v;
             ring(1, eo, r);
             raise(M, r);
@@ -327,9 +330,9 @@ private:
                 r = m_grid.leaf_max()[i];
                 lo = m_grid.leaf_min()[i];
                 ring(0, eo, r);
-                raise(m_out.values[i], r);
+                raise(m_out.values[m_out.layout.leaf_slot(uint32_t(leaf / 4))], r);
             } else {
-                const float v = start(load<float>(m_buf + e));
+                const float v = start(m_codec.tile_bound(m_buf + e));
                 r = lo = v;
                 ring(0, eo, r);
                 if (r > v)
@@ -378,7 +381,7 @@ private:
             const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
             const Cover self = child != 0
                                    ? Cover{ 2, uint64_t(int64_t(m_root) + child), 0.f }
-                                   : Cover{ -1, 0, load<float>(m_buf + tile + m_c.root_tile_off_value) };
+                                   : Cover{ -1, 0, m_codec.tile_bound(m_buf + tile + m_c.root_tile_off_value) };
             for_each_neighbour(o, layout::ROOT_TILE_LOG2, true,
                                [&](const int32_t n[3], const Layer sel[3]) {
                                    if (m_tiles.count(key_of(n)) == 0)
@@ -391,6 +394,7 @@ private:
     const ValidatedGrid &m_grid;
     const uint8_t *m_buf;
     const GridSummary &m_s;
+    const detail::ValueCodec m_codec;
     const layout::GridTypeConstants &m_c;
     const uint64_t m_root;
     float m_background = 0.f;

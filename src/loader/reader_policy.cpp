@@ -19,16 +19,14 @@ bool has_compact_offsets(const ValidatedGrid &grid) {
     if (grid.bytes() >= (uint64_t(1) << 32))
         return false;
     const GridSummary &s = grid.summary();
-    const layout::GridTypeConstants &c = *layout::grid_type_constants(s.grid_type);
     // End of the previous array, in bytes
     uint64_t end = uint64_t(s.root_word) * 4 + 4;
-    const uint64_t sizes[3] = { c.leaf_size, c.lower_size, c.upper_size };
     for (int level : { 2, 1, 0 }) {
         if (s.node_count[level] == 0)
             continue;
         if (s.node_begin[level] < end)
             return false;
-        end = s.node_begin[level] + uint64_t(s.node_count[level]) * sizes[level];
+        end = s.node_end[level];
     }
     return true;
 }

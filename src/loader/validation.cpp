@@ -1,4 +1,4 @@
-// src/loader/validation.cpp -- validate_float_grid() (see validation.h), in
+// src/loader/validation.cpp -- validate_grid() (see validation.h), in
 // four steps: the grid header, the regions of the tree (node arrays, root,
 // disjointness), then one walk over the tree that checks every child offset
 // and accumulates the values.
@@ -6,7 +6,10 @@
 #include <nanovdb_loader/validation.h>
 
 #include "detail.h"
+#include "value_codec.h"
 #include "value_stats.h"
+
+#include <algorithm>
 
 #include <string>
 #include <tuple>
@@ -23,8 +26,19 @@ struct NodeArray {
     const char *name;
     uint64_t offset, count, node_size; ///< offset: relative to the tree
     uint64_t begin = 0;                ///< byte offset in the buffer
+    /// FpN leaves only (node_size 0): each node's byte offset, and the end
+    std::vector<uint64_t> starts;
+    uint64_t variable_end = 0;
 
-    uint64_t end() const { return begin + count * node_size; }
+    uint64_t end() const { return node_size ? begin + count * node_size : variable_end; }
+    /// Is byte offset t the start of a node of the array?
+    bool is_node(uint64_t t) const {
+        if (t < begin || t >= end())
+            return false;
+        if (node_size)
+            return (t - begin) % node_size == 0;
+        return std::binary_search(starts.begin(), starts.end(), t);
+    }
 };
 
 /// Where the parts of the tree lie, once checked
@@ -58,9 +72,10 @@ uint64_t check_header(const std::string &path, const uint8_t *buf, uint64_t byte
                        "; only major version 32 is supported");
     const uint32_t grid_type = load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE);
     name = fixed_string(buf + layout::GRID_OFF_GRID_NAME, layout::GRID_NAME_SIZE);
-    if (grid_type != layout::GRID_TYPE_FLOAT)
+    if (!layout::value_type(grid_type))
         fail(path, "grid \"" + name + "\" has type " + grid_type_name(grid_type) +
-                       ", but only float grids are supported (supported types: float)");
+                       ", which is not supported (supported types: " + supported_grid_types() +
+                       ")");
     const uint64_t end = load<uint64_t>(buf + layout::GRID_OFF_GRID_SIZE);
     if (end > bytes)
         fail(path, "GridData.mGridSize = " + std::to_string(end) +
@@ -71,23 +86,64 @@ uint64_t check_header(const std::string &path, const uint8_t *buf, uint64_t byte
     return end;
 }
 
+/// FpN leaves, one after the other: each one's code width (1 to 16 bits)
+/// gives its size, and each must lie inside the grid
+void fpn_leaves(const std::string &path, const uint8_t *buf, uint64_t end, NodeArray &l) {
+    const uint64_t tree = layout::GRID_SIZE;
+    if (l.offset > end - tree)
+        fail(path, "leaf node array at tree offset " + std::to_string(l.offset) +
+                       " lies outside the " + std::to_string(end) + "-byte grid");
+    l.begin = tree + l.offset;
+    if (l.begin % layout::NODE_ALIGNMENT != 0)
+        fail(path, "leaf node array at byte " + std::to_string(l.begin) +
+                       " is not 32-byte aligned");
+    l.starts.reserve(size_t(l.count));
+    uint64_t at = l.begin;
+    for (uint64_t n = 0; n < l.count; ++n) {
+        if (end - at < layout::FPN_MIN_LEAF_SIZE)
+            fail(path, "FpN leaf " + std::to_string(n) + " of " + std::to_string(l.count) +
+                           " (byte " + std::to_string(at) + ") does not fit in the " +
+                           std::to_string(end) + "-byte grid");
+        const uint32_t flags = load<uint32_t>(buf + at + layout::LEAF_OFF_BBOX_DIF_AND_FLAGS) >> 24;
+        if ((flags >> 5) > 4)
+            fail(path, "FpN leaf " + std::to_string(n) + " (byte " + std::to_string(at) +
+                           ") has a code width of " + std::to_string(1u << (flags >> 5)) +
+                           " bits (flags " + std::to_string(flags) +
+                           "); FpN codes are 1, 2, 4, 8 or 16 bits");
+        const uint64_t size = layout::fpn_leaf_size(flags);
+        if (size > end - at)
+            fail(path, "FpN leaf " + std::to_string(n) + " (byte " + std::to_string(at) + ", " +
+                           std::to_string(size) + " bytes) extends past the end of the " +
+                           std::to_string(end) + "-byte grid");
+        l.starts.push_back(at);
+        at += size;
+    }
+    l.variable_end = at;
+}
+
 /// Step 2: the node arrays and the root with its tile table lie inside the
 /// grid, aligned, and do not overlap each other or the header
 TreeRegions check_regions(const std::string &path, const uint8_t *buf, uint64_t end,
-                          const layout::GridTypeConstants &c) {
+                          const ValueCodec &codec) {
+    const layout::GridTypeConstants &c = codec.constants();
     const uint64_t tree = layout::GRID_SIZE;
     const uint8_t *t = buf + tree;
     TreeRegions g{ end, 0, 0,
                    { "leaf", load<uint64_t>(t + layout::TREE_OFF_NODE_OFFSET_LEAF),
-                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_LEAF), c.leaf_size },
+                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_LEAF),
+                     codec.variable_leaf_size() ? 0 : c.leaf_size, 0, {}, 0 },
                    { "lower", load<uint64_t>(t + layout::TREE_OFF_NODE_OFFSET_LOWER),
-                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_LOWER), c.lower_size },
+                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_LOWER), c.lower_size, 0, {}, 0 },
                    { "upper", load<uint64_t>(t + layout::TREE_OFF_NODE_OFFSET_UPPER),
-                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_UPPER), c.upper_size } };
+                     load<uint32_t>(t + layout::TREE_OFF_NODE_COUNT_UPPER), c.upper_size, 0, {}, 0 } };
     for (NodeArray *l : { &g.leaf, &g.lower, &g.upper }) {
         if (l->count == 0)
             continue; // offset unused (writers leave it 0 or point at the end)
         const uint64_t room = end - tree;
+        if (l->node_size == 0) { // FpN leaves: each as long as its code width
+            fpn_leaves(path, buf, end, *l);
+            continue;
+        }
         if (l->offset > room || l->count * l->node_size > room - l->offset)
             fail(path, std::string(l->name) + " node array (" + std::to_string(l->count) +
                            " nodes of " + std::to_string(l->node_size) +
@@ -153,16 +209,15 @@ TreeRegions check_regions(const std::string &path, const uint8_t *buf, uint64_t 
 class TreeWalk {
 public:
     TreeWalk(const std::string &path, const uint8_t *buf, const TreeRegions &g,
-             const layout::GridTypeConstants &c)
-        : m_path(path), m_buf(buf), m_g(g), m_c(c) {}
+             const ValueCodec &codec)
+        : m_path(path), m_buf(buf), m_g(g), m_codec(codec), m_c(codec.constants()) {}
 
     /// The smallest and largest value of every leaf (NaN skipped), in leaf
     /// array order
     std::vector<float> leaf_min, leaf_max;
 
     ValueStats run() {
-        const uint8_t *r = m_buf + m_g.root;
-        m_values.add(load<float>(r + m_c.root_off_background), m_g.root + m_c.root_off_background);
+        tile_value(m_g.root + m_c.root_off_background);
         root_tiles();
         internal_nodes(m_g.upper, m_g.lower, layout::UPPER_OFF_CHILD_MASK, m_c.upper_off_table,
                        layout::UPPER_TABLE_COUNT);
@@ -179,8 +234,7 @@ private:
             const uint64_t tile = m_g.root + m_c.root_size + i * m_c.root_tile_size;
             const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
             if (child == 0) {
-                m_values.add(load<float>(m_buf + tile + m_c.root_tile_off_value),
-                             tile + m_c.root_tile_off_value);
+                tile_value(tile + m_c.root_tile_off_value);
                 continue;
             }
             check_child(m_g.upper, m_g.root, child, [&] {
@@ -203,7 +257,7 @@ private:
                     const uint64_t k = w * 32 + b,
                                    entry = node + table_off + k * m_c.table_stride;
                     if (!(mask & (uint32_t(1) << b))) {
-                        m_values.add(load<float>(m_buf + entry), entry);
+                        tile_value(entry);
                         continue;
                     }
                     check_child(below, node, load<int64_t>(m_buf + entry), [&] {
@@ -216,14 +270,36 @@ private:
         }
     }
 
-    /// Leaves hold almost all values: a vectorizable pass per leaf
+    /// A value outside the leaves (`channels` floats at byte `at`)
+    void tile_value(uint64_t at) {
+        float v[3] = { 0.f, 0.f, 0.f };
+        m_codec.tile(m_buf + at, v);
+        for (uint32_t k = 0; k < m_codec.channels(); ++k)
+            m_values.add(v[k], at);
+    }
+
+    /// Leaves hold almost all values: a vectorizable pass per leaf (decoded
+    /// first unless they are floats)
     void leaves() {
         leaf_min.resize(m_g.leaf.count);
         leaf_max.resize(m_g.leaf.count);
+        const uint32_t channels = m_codec.channels();
+        std::vector<float> decoded(layout::LEAF_TABLE_COUNT * channels);
         for (uint64_t n = 0; n < m_g.leaf.count; ++n) {
-            const uint64_t table = m_g.leaf.begin + n * m_c.leaf_size + m_c.leaf_off_table;
+            const uint64_t leaf = m_g.leaf.node_size ? m_g.leaf.begin + n * m_g.leaf.node_size
+                                                     : m_g.leaf.starts[size_t(n)];
+            const float *values = reinterpret_cast<const float *>(m_buf + leaf + m_c.leaf_off_table);
+            if (m_codec.type().codec != layout::LeafCodec::Float32) {
+                m_codec.leaf(m_buf + leaf, decoded.data());
+                values = decoded.data();
+            }
+            auto key = [n, channels](uint32_t k) {
+                return ValueStats::leaf_value_key(n, k / channels);
+            };
             std::tie(leaf_min[n], leaf_max[n]) =
-                m_values.add_run<layout::LEAF_TABLE_COUNT>(m_buf + table, table);
+                channels == 1
+                    ? m_values.add_run<layout::LEAF_TABLE_COUNT>(values, key)
+                    : m_values.add_run<layout::LEAF_TABLE_COUNT * 3>(values, key);
         }
     }
 
@@ -235,8 +311,7 @@ private:
         const uint64_t end = m_g.grid_end, array_end = level.end();
         if (level.count != 0 && child >= -int64_t(end) && child <= int64_t(end)) {
             const int64_t t = int64_t(from) + child; // |from|, |child| <= 2^34: no overflow
-            if (t >= int64_t(level.begin) && uint64_t(t) < array_end &&
-                (uint64_t(t) - level.begin) % level.node_size == 0)
+            if (t >= 0 && level.is_node(uint64_t(t)))
                 return; // the common case, without building any message
         }
         const std::string msg_head = who() + " has child offset " + std::to_string(child);
@@ -252,23 +327,26 @@ private:
             fail(m_path, msg_head + " (byte " + std::to_string(target) + "): outside the " +
                              level.name + " node array [" + std::to_string(level.begin) +
                              ", " + std::to_string(array_end) + ")");
-        if ((target - level.begin) % level.node_size != 0)
+        if (!level.is_node(target))
             fail(m_path, msg_head + " (byte " + std::to_string(target) +
                              "): misaligned, not at a " + level.name +
                              " node boundary (array at byte " + std::to_string(level.begin) +
-                             ", stride " + std::to_string(level.node_size) + ")");
+                             (level.node_size ? ", stride " + std::to_string(level.node_size)
+                                              : std::string(", FpN leaves")) + ")");
     }
 
     const std::string &m_path;
     const uint8_t *m_buf;
     const TreeRegions &m_g;
+    const ValueCodec &m_codec;
     const layout::GridTypeConstants &m_c;
     ValueAccumulator m_values;
 };
 
 /// Step 4: the header fields the rest of the pipeline needs
 GridSummary summarize(const uint8_t *buf, const TreeRegions &g, const std::string &name,
-                      const layout::GridTypeConstants &c) {
+                      const ValueCodec &codec) {
+    const layout::GridTypeConstants &c = codec.constants();
     GridSummary s;
     const uint8_t *t = buf + layout::GRID_SIZE, *r = buf + g.root;
     s.grid_type = load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE);
@@ -282,7 +360,7 @@ GridSummary summarize(const uint8_t *buf, const TreeRegions &g, const std::strin
     }
     s.empty = s.bbox_min[0] > s.bbox_max[0] || s.bbox_min[1] > s.bbox_max[1] ||
               s.bbox_min[2] > s.bbox_max[2];
-    s.background = load<float>(r + c.root_off_background);
+    s.background = codec.tile_bound(r + c.root_off_background);
     const uint8_t *map = buf + layout::GRID_OFF_MAP;
     for (int i = 0; i < 9; ++i) {
         s.map_mat[i] = load<double>(map + layout::MAP_OFF_MATD + 8 * i);
@@ -296,6 +374,7 @@ GridSummary summarize(const uint8_t *buf, const TreeRegions &g, const std::strin
     for (int l = 0; l < 3; ++l) {
         s.node_count[l] = uint32_t(arrays[l]->count);
         s.node_begin[l] = arrays[l]->begin;
+        s.node_end[l] = arrays[l]->count ? arrays[l]->end() : arrays[l]->begin;
     }
     s.active_voxel_count = load<uint64_t>(t + layout::TREE_OFF_VOXEL_COUNT);
     return s;
@@ -303,21 +382,29 @@ GridSummary summarize(const uint8_t *buf, const TreeRegions &g, const std::strin
 
 } // namespace
 
-ValidatedGrid validate_float_grid(const std::string &path, const void *data, uint64_t bytes) {
+uint64_t ValidatedGrid::leaf_containing(uint64_t byte) const {
+    if (m_leaf_offsets.empty())
+        return (byte - m_summary.node_begin[0]) / m_leaf_size;
+    return uint64_t(std::upper_bound(m_leaf_offsets.begin(), m_leaf_offsets.end(), byte) -
+                    m_leaf_offsets.begin()) - 1;
+}
+
+ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t bytes) {
     // Read only here; the const_cast is undone by m_writable = false
     uint8_t *buf = const_cast<uint8_t *>(static_cast<const uint8_t *>(data));
     std::string name;
     const uint64_t end = check_header(path, buf, bytes, name);
-    const layout::GridTypeConstants &c =
-        *layout::grid_type_constants(load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE));
-    const TreeRegions regions = check_regions(path, buf, end, c);
+    const ValueCodec codec(load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE));
+    TreeRegions regions = check_regions(path, buf, end, codec);
 
     ValidatedGrid grid;
-    TreeWalk walk(path, buf, regions, c);
+    TreeWalk walk(path, buf, regions, codec);
     grid.m_values = walk.run();
     grid.m_leaf_min = std::move(walk.leaf_min);
     grid.m_leaf_max = std::move(walk.leaf_max);
-    grid.m_summary = summarize(buf, regions, name, c);
+    grid.m_summary = summarize(buf, regions, name, codec);
+    grid.m_leaf_size = regions.leaf.node_size;
+    grid.m_leaf_offsets = std::move(regions.leaf.starts);
     grid.m_path = path;
     grid.m_data = buf;
     grid.m_bytes = bytes;
@@ -325,8 +412,8 @@ ValidatedGrid validate_float_grid(const std::string &path, const void *data, uin
     return grid;
 }
 
-ValidatedGrid validate_float_grid(const std::string &path, void *data, uint64_t bytes) {
-    ValidatedGrid grid = validate_float_grid(path, static_cast<const void *>(data), bytes);
+ValidatedGrid validate_grid(const std::string &path, void *data, uint64_t bytes) {
+    ValidatedGrid grid = validate_grid(path, static_cast<const void *>(data), bytes);
     grid.m_writable = true;
     return grid;
 }

@@ -17,7 +17,7 @@ namespace nanovdb_loader::detail {
 
 class ValueAccumulator {
 public:
-    /// One value, stored at byte offset `byte` of the buffer
+    /// One value, at position `byte` (ValueStats' "first" keys)
     void add(float v, uint64_t byte) {
         ++m.value_count;
         if (std::isnan(v)) {
@@ -41,13 +41,14 @@ public:
         }
     }
 
-    /// `count` consecutive float values at `p` (byte offset `byte`): a
-    /// branch-free pass (min/max and a count of NaN/Inf bit patterns, which
-    /// the compiler vectorizes), and the per-value path only for a run that
-    /// holds NaN, Inf or a negative value. (4.6 GiB grid: ~12 s -> ~1 s.)
-    /// Returns the run's smallest and largest value (NaN skipped; +Inf and
-    /// -Inf if all are NaN).
-    template <uint32_t Count> std::pair<float, float> add_run(const uint8_t *p, uint64_t byte) {
+    /// `Count` consecutive values at `p` (maybe unaligned), value k at
+    /// position key(k): a branch-free pass (min/max and a count of NaN/Inf
+    /// bit patterns, which the compiler vectorizes), and the per-value path
+    /// only for a run that holds NaN, Inf or a negative value. (4.6 GiB
+    /// grid: ~12 s -> ~1 s.) Returns the run's smallest and largest value
+    /// (NaN skipped; +Inf and -Inf if all are NaN).
+    template <uint32_t Count, typename Key>
+    std::pair<float, float> add_run(const float *p, const Key &key) {
         float values[Count];
         std::memcpy(values, p, sizeof(values));
         float lmin = std::numeric_limits<float>::infinity(), lmax = -lmin;
@@ -70,7 +71,7 @@ public:
         }
         float run_min = std::numeric_limits<float>::infinity(), run_max = -run_min;
         for (uint32_t k = 0; k < Count; ++k) {
-            add(values[k], byte + 4 * k);
+            add(values[k], key(k));
             if (!std::isnan(values[k])) {
                 run_min = std::min(run_min, values[k]);
                 run_max = std::max(run_max, values[k]);

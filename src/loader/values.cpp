@@ -3,6 +3,7 @@
 #include <nanovdb_loader/values.h>
 
 #include "detail.h"
+#include "value_codec.h"
 #include "value_stats.h"
 
 #include <cmath>
@@ -82,6 +83,8 @@ struct NodeOrigins {
             origin[l].assign(s.node_count[l], Origin{ { 0, 0, 0 }, false });
         auto child_index = [&](int level, uint64_t parent, int64_t delta) {
             const uint64_t target = uint64_t(int64_t(parent) + delta); // validated
+            if (level == 0)
+                return size_t(grid.leaf_containing(target));
             return size_t((target - s.node_begin[level]) / level_of(c, level).node_size);
         };
         const uint64_t root = uint64_t(s.root_word) * 4;
@@ -114,9 +117,9 @@ struct NodeOrigins {
     }
 };
 
-/// Visits every value that validation counts, in the same order, as
-/// f(pointer to the value (maybe unaligned), its byte offset)
-template <typename F> void for_each_value(ValidatedGrid &grid, F &&f) {
+/// Visits every value outside the leaves that validation counts, in the same
+/// order, as f(pointer to the value (maybe unaligned), its byte offset)
+template <typename F> void for_each_tile_value(ValidatedGrid &grid, F &&f) {
     const GridSummary &s = grid.summary();
     const layout::GridTypeConstants &c = constants(grid);
     uint8_t *buf = ValueRewriter::data(grid);
@@ -127,12 +130,12 @@ template <typename F> void for_each_value(ValidatedGrid &grid, F &&f) {
         if (load<int64_t>(buf + tile + layout::ROOT_TILE_OFF_CHILD) == 0)
             f(buf + tile + c.root_tile_off_value, tile + c.root_tile_off_value);
     }
-    for (int level : { 2, 1, 0 }) {
+    for (int level : { 2, 1 }) {
         const Level l = level_of(c, level);
         for (uint64_t n = 0; n < s.node_count[level]; ++n) {
             const uint64_t node = s.node_begin[level] + n * l.node_size;
             for (uint64_t e = 0; e < l.table_count; ++e) {
-                if (level > 0 && child_bit(buf + node, l, e))
+                if (child_bit(buf + node, l, e))
                     continue;
                 const uint64_t at = node + l.table_off + e * l.table_stride;
                 f(buf + at, at);
@@ -141,15 +144,41 @@ template <typename F> void for_each_value(ValidatedGrid &grid, F &&f) {
     }
 }
 
+/// loc.level and loc.ijk of entry e of node n (at byte `node`) of `level`
+void locate_entry(const ValidatedGrid &grid, int level, size_t n, uint64_t node, uint64_t e,
+                  ValueLocation &loc) {
+    const NodeOrigins origins(grid);
+    const NodeOrigins::Origin &o = origins.origin[level][n];
+    int32_t base[3];
+    if (o.set) {
+        for (int k = 0; k < 3; ++k) base[k] = o.ijk[k];
+    } else { // the node's own bbox minimum, rounded down to the node size
+        const uint32_t m = level == 0 ? 7u : level == 1 ? 127u : 4095u;
+        for (int k = 0; k < 3; ++k)
+            base[k] = int32_t(load<uint32_t>(grid.data() + node + 4 * k) & ~m);
+        loc.reachable = false;
+    }
+    loc.level = uint32_t(level);
+    entry_origin(e, level_of(constants(grid), level), base, loc.ijk);
+}
+
 } // namespace
 
-ValueLocation locate_value(const ValidatedGrid &grid, uint64_t byte) {
+ValueLocation locate_value(const ValidatedGrid &grid, uint64_t key) {
     const GridSummary &s = grid.summary();
     const layout::GridTypeConstants &c = constants(grid);
     const uint8_t *buf = grid.data();
     const uint64_t root = uint64_t(s.root_word) * 4,
                    tiles = root + c.root_size;
     ValueLocation loc;
+    if (key & ValueStats::LEAF_VALUE) { // leaf index << 9 | n
+        const uint64_t leaf = (key & ~ValueStats::LEAF_VALUE) >> 9, node = grid.leaf_byte(leaf);
+        const uint32_t n = uint32_t(key & 511u);
+        loc.byte = node + ValueCodec(s.grid_type).leaf_value_offset(n);
+        locate_entry(grid, 0, size_t(leaf), node, n, loc);
+        return loc;
+    }
+    const uint64_t byte = key;
     loc.byte = byte;
     if (byte >= tiles && byte < tiles + uint64_t(s.root_tile_count) * c.root_tile_size) {
         const uint64_t tile = tiles + (byte - tiles) / c.root_tile_size * c.root_tile_size;
@@ -157,28 +186,15 @@ ValueLocation locate_value(const ValidatedGrid &grid, uint64_t byte) {
         layout::key_to_origin(load<uint64_t>(buf + tile + layout::ROOT_TILE_OFF_KEY), loc.ijk);
         return loc;
     }
-    for (int level : { 2, 1, 0 }) {
+    for (int level : { 2, 1 }) {
         const Level l = level_of(c, level);
-        const uint64_t begin = s.node_begin[level],
-                       end = begin + uint64_t(s.node_count[level]) * l.node_size;
+        const uint64_t begin = s.node_begin[level], end = s.node_end[level];
         if (s.node_count[level] == 0 || byte < begin || byte >= end)
             continue;
         const uint64_t n = (byte - begin) / l.node_size,
                        node = begin + n * l.node_size,
                        e = (byte - node - l.table_off) / l.table_stride;
-        const NodeOrigins origins(grid);
-        const NodeOrigins::Origin &o = origins.origin[level][size_t(n)];
-        int32_t base[3];
-        if (o.set) {
-            for (int k = 0; k < 3; ++k) base[k] = o.ijk[k];
-        } else { // the node's own bbox minimum, rounded down to the node size
-            const uint32_t m = level == 0 ? 7u : level == 1 ? 127u : 4095u;
-            for (int k = 0; k < 3; ++k)
-                base[k] = int32_t(load<uint32_t>(buf + node + 4 * k) & ~m);
-            loc.reachable = false;
-        }
-        loc.level = uint32_t(level);
-        entry_origin(e, l, base, loc.ijk);
+        locate_entry(grid, level, size_t(n), node, e, loc);
         return loc;
     }
     return loc; // the background
@@ -224,6 +240,36 @@ std::string describe_invalid_values(const ValueScan &s) {
     return msg;
 }
 
+namespace {
+
+/// Encodes a quantized leaf's 512 values again at its code width (see
+/// sanitize_values); NanoVDB's encoder without dithering
+void encode_quantized_leaf(uint8_t *leaf, const float *values, uint32_t log2_bits) {
+    const uint32_t bits = 1u << log2_bits, per_word_bits = 5u - log2_bits;
+    const uint32_t top = (1u << bits) - 1u;
+    float lo = values[0], hi = values[0];
+    for (uint32_t n = 1; n < 512; ++n) {
+        lo = std::min(lo, values[n]);
+        hi = std::max(hi, values[n]);
+    }
+    const float quantum = (hi - lo) / float(top);
+    uint8_t *table = leaf + layout::GRID_TYPE_CONSTANTS_FPN.leaf_off_table;
+    std::memcpy(table - layout::LEAF_TABLE_NEG_OFF_MINIMUM, &lo, 4);
+    std::memcpy(table - layout::LEAF_TABLE_NEG_OFF_QUANTUM, &quantum, 4);
+    std::memset(table, 0, size_t(64) << log2_bits);
+    for (uint32_t n = 0; n < 512; ++n) {
+        uint32_t code = 0;
+        if (quantum > 0.f)
+            code = uint32_t(std::min(float(top), std::nearbyint((values[n] - lo) / quantum)));
+        uint8_t *word = table + 4 * (n >> per_word_bits);
+        const uint32_t w = load<uint32_t>(word) |
+                           (code << ((n & ((1u << per_word_bits) - 1u)) << log2_bits));
+        std::memcpy(word, &w, 4);
+    }
+}
+
+} // namespace
+
 SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &options) {
     const ValueStats &before = grid.values();
     const bool any_finite = before.finite_max >= before.finite_min;
@@ -234,29 +280,64 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
                                                   : before.finite_max;
     const float neg_repl = options.clamp_negative || !any_finite ? 0.f : before.finite_min;
     SanitizeResult r;
+    auto repair = [&](float v) {
+        if (std::isnan(v)) { ++r.nan; return 0.f; }
+        if (v == std::numeric_limits<float>::infinity()) { ++r.posinf; return pos_repl; }
+        if (v == -std::numeric_limits<float>::infinity()) { ++r.neginf; return neg_repl; }
+        if (v < 0.f && options.clamp_negative) { ++r.negative; return 0.f; }
+        return v;
+    };
     ValueAccumulator after;
     const GridSummary &s = grid.summary();
-    const layout::GridTypeConstants &c = constants(grid);
-    std::vector<float> leaf_min(s.node_count[0], std::numeric_limits<float>::infinity()),
-                       leaf_max(s.node_count[0], -std::numeric_limits<float>::infinity());
-    // The leaf array's bytes (validated disjoint from every other region)
-    const uint64_t leaves = s.node_begin[0], leaves_end = leaves + uint64_t(s.node_count[0]) * c.leaf_size;
-    for_each_value(grid, [&](uint8_t *p, uint64_t byte) {
-        const float v = load<float>(p);
-        float w = v;
-        if (std::isnan(v)) { w = 0.f; ++r.nan; }
-        else if (v == std::numeric_limits<float>::infinity()) { w = pos_repl; ++r.posinf; }
-        else if (v == -std::numeric_limits<float>::infinity()) { w = neg_repl; ++r.neginf; }
-        else if (v < 0.f && options.clamp_negative) { w = 0.f; ++r.negative; }
-        if (w != v) // NaN != 0 too
-            std::memcpy(p, &w, sizeof(float));
-        after.add(w, byte);
-        if (byte >= leaves && byte < leaves_end) { // a leaf value
-            const size_t leaf = size_t((byte - leaves) / c.leaf_size);
-            leaf_min[leaf] = std::min(leaf_min[leaf], w);
-            leaf_max[leaf] = std::max(leaf_max[leaf], w);
+    const ValueCodec codec(s.grid_type);
+    const uint32_t channels = codec.channels();
+    const bool half = codec.type().codec == layout::LeafCodec::Half;
+    // Writes v at p as the type stores it (NaN != 0 too: compare bits)
+    auto store = [&](uint8_t *p, float v) {
+        if (half) {
+            const uint16_t h = float_to_half(v); // v is a half or a replacement
+            std::memcpy(p, &h, 2);                // (finite_max/min of halves, 0)
+        } else {
+            std::memcpy(p, &v, 4);
+        }
+    };
+    for_each_tile_value(grid, [&](uint8_t *p, uint64_t byte) {
+        float v[3] = { 0.f, 0.f, 0.f };
+        codec.tile(p, v);
+        for (uint32_t k = 0; k < channels; ++k) {
+            const float w = repair(v[k]);
+            if (std::memcmp(&w, &v[k], 4) != 0)
+                store(p + 4 * k, w);
+            after.add(w, byte);
         }
     });
+    std::vector<float> leaf_min(s.node_count[0], std::numeric_limits<float>::infinity()),
+                       leaf_max(s.node_count[0], -std::numeric_limits<float>::infinity());
+    uint8_t *buf = ValueRewriter::data(grid);
+    std::vector<float> values(512 * channels);
+    for (uint64_t n = 0; n < s.node_count[0]; ++n) {
+        uint8_t *leaf = buf + grid.leaf_byte(n);
+        codec.leaf(leaf, values.data());
+        bool changed = false;
+        for (uint32_t k = 0; k < 512 * channels; ++k) {
+            const float w = repair(values[k]);
+            if (std::memcmp(&w, &values[k], 4) == 0)
+                continue;
+            changed = true;
+            values[k] = w;
+            if (!codec.quantized())
+                store(leaf + codec.leaf_value_offset(k / channels) + 4 * (k % channels), w);
+        }
+        if (changed && codec.quantized()) {
+            encode_quantized_leaf(leaf, values.data(), codec.log2_bits(leaf));
+            codec.leaf(leaf, values.data()); // the values lookups now return
+        }
+        for (uint32_t k = 0; k < 512 * channels; ++k) {
+            after.add(values[k], ValueStats::leaf_value_key(n, k / channels));
+            leaf_min[size_t(n)] = std::min(leaf_min[size_t(n)], values[k]);
+            leaf_max[size_t(n)] = std::max(leaf_max[size_t(n)], values[k]);
+        }
+    }
     ValueRewriter::set_values(grid, after.finish(), std::move(leaf_min), std::move(leaf_max));
     return r;
 }

@@ -235,6 +235,7 @@ public:
         oss << "NanoVDBVolume[" << std::endl
             << "  filename = \"" << m_filename << "\"," << std::endl
             << "  grid = \"" << m_grid_name << "\"," << std::endl
+            << "  grid_type = " << nanovdb_loader::grid_type_name(m_grid_type) << "," << std::endl
             << "  filter_type = " << (m_nearest ? "nearest" : "trilinear") << "," << std::endl
             << "  use_grid_transform = " << m_use_grid_transform << "," << std::endl
             << "  to_local = " << string::indent(m_to_local, 13) << "," << std::endl
@@ -285,10 +286,12 @@ public:
 
     Walk walk_begin(const WalkRay &r, const Float &tmin, const Float &tmax,
                     Mask active) const override {
-        Walk walk = m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-            return nanovdb_drjit::walk_begin(buf, root, m_majorants, Array3f(r.origin),
-                                             Array3f(r.direction), tmin, tmax, r.coarse_limit,
-                                             active);
+        Walk walk = with_type([&](auto type) {
+            return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+                return nanovdb_drjit::walk_begin<decltype(type)::value>(
+                    buf, root, m_majorants, Array3f(r.origin), Array3f(r.direction), tmin,
+                    tmax, r.coarse_limit, active);
+            });
         });
         count(7, active);
         count_step(walk, active && nanovdb_drjit::walk_valid(walk));
@@ -296,9 +299,12 @@ public:
     }
 
     Mask walk_advance(Walk &walk, const WalkRay &r, Mask active) const override {
-        Mask more = m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-            return nanovdb_drjit::walk_advance(buf, root, m_majorants, walk, Array3f(r.origin),
-                                               Array3f(r.direction), r.coarse_limit, active);
+        Mask more = with_type([&](auto type) {
+            return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+                return nanovdb_drjit::walk_advance<decltype(type)::value>(
+                    buf, root, m_majorants, walk, Array3f(r.origin), Array3f(r.direction),
+                    r.coarse_limit, active);
+            });
         });
         count_step(walk, more);
         return more;
@@ -391,9 +397,10 @@ private:
     Float value_at(const Vector3i &ijk, Mask active) const {
         namespace ndr = nanovdb_drjit;
         ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
-        return dr::minimum(m_max, m_reader.apply(grid_words(), [&](const auto &buf,
-                                                                    const auto &root) {
-            return ndr::root_get_value(buf, root, c, active);
+        return dr::minimum(m_max, with_type([&](auto type) {
+            return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+                return ndr::root_get_value<decltype(type)::value>(buf, root, c, active);
+            });
         }));
     }
 
@@ -407,18 +414,28 @@ private:
                  w0 = 1.f - w1;
         Vector3i ijk0 = index_add(base, m_index_min);
         ndr::Coord<UInt32> c(ijk0.x(), ijk0.y(), ijk0.z());
-        dr::Array<UInt32, 8> address =
-            m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-                return ndr::root_get_stencil_addresses(buf, root, c, active);
-            });
-        Float result = 0.f;
-        for (uint32_t corner = 0; corner < 8; ++corner) {
-            Float weight = 1.f;
-            for (uint32_t k = 0; k < 3; ++k)
-                weight = weight * (((corner >> k) & 1) ? w1[k] : w0[k]);
-            result = dr::fmadd(ndr::read_float(grid_words(), address[corner], active), weight,
-                               result);
-        }
+        Float result = with_type([&](auto type) {
+            constexpr uint32_t T = decltype(type)::value;
+            // Levels: only the quantized and half readers need them
+            constexpr bool with_level = ndr::grid_type_traits<T>::type.codec !=
+                                        ndr::layout::LeafCodec::Float32;
+            ndr::StencilAddresses<UInt32> corners =
+                m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+                    return ndr::root_get_stencil<T, with_level>(buf, root, c, active);
+                });
+            Float sum = 0.f;
+            for (uint32_t corner = 0; corner < 8; ++corner) {
+                Float weight = 1.f;
+                for (uint32_t k = 0; k < 3; ++k)
+                    weight = weight * (((corner >> k) & 1) ? w1[k] : w0[k]);
+                ndr::Coord<UInt32> ijk = ndr::coord_add<UInt32>(c, corner & 1u, (corner >> 1) & 1u,
+                                                                (corner >> 2) & 1u);
+                Float value = ndr::root_read_float<T>(grid_words(), corners.address[corner],
+                                                      corners.level[corner], ijk, active);
+                sum = dr::fmadd(value, weight, sum);
+            }
+            return sum;
+        });
         // The rounded weights can sum to slightly more than 1, so the result
         // could exceed the largest corner by a few ulps (measured: 3 ulps on
         // a level set whose values sit at its maximum); and corners outside
@@ -440,6 +457,21 @@ private:
     static Vector3i index_add(const Vector3i &a, const Vector3i &b) {
         return dr::reinterpret_array<Vector3i>(dr::reinterpret_array<Vector3u>(a) +
                                                dr::reinterpret_array<Vector3u>(b));
+    }
+
+    /// Calls fn(std::integral_constant<uint32_t, grid type>) for the grid's
+    /// value type: every type is compiled, one is traced
+    template <typename Fn> decltype(auto) with_type(Fn &&fn) const {
+        namespace L = nanovdb_drjit::layout;
+        using std::integral_constant;
+        switch (m_grid_type) {
+            case L::GRID_TYPE_HALF: return fn(integral_constant<uint32_t, L::GRID_TYPE_HALF>{});
+            case L::GRID_TYPE_FP4:  return fn(integral_constant<uint32_t, L::GRID_TYPE_FP4>{});
+            case L::GRID_TYPE_FP8:  return fn(integral_constant<uint32_t, L::GRID_TYPE_FP8>{});
+            case L::GRID_TYPE_FP16: return fn(integral_constant<uint32_t, L::GRID_TYPE_FP16>{});
+            case L::GRID_TYPE_FPN:  return fn(integral_constant<uint32_t, L::GRID_TYPE_FPN>{});
+            default:                return fn(integral_constant<uint32_t, L::GRID_TYPE_FLOAT>{});
+        }
     }
 
     /// The grid as the translation reads it: a JIT array or a host pointer
@@ -474,6 +506,12 @@ private:
             std::vector<loader::GridEntry> grids = loader::list_grids(m_filename);
             const loader::GridEntry &entry = loader::select_grid(m_filename, grids, selector);
             m_grid_name = entry.name;
+            m_grid_type = entry.grid_type;
+            if (m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F)
+                Throw("nanovdbvolume: \"%s\": grid \"%s\" has type Vec3f, which this "
+                      "build reads only through the loader (the plugin's 3-channel lookups "
+                      "are not written yet); supported here: float, Half, Fp4, Fp8, Fp16, FpN",
+                      m_filename, m_grid_name);
             m_grid_bytes = (size_t) entry.grid_size;
             m_backend_bytes = ((m_grid_bytes + 63) / 64) * 64;
             size_t word_count = m_backend_bytes / 4;
@@ -647,6 +685,7 @@ private:
     ScalarFloat m_max_host = 0.f;      // max(): the largest value lookups in the box return
     ScalarFloat m_grid_max_host = 0.f; // the largest value the grid stores
     ScalarFloat m_background_host = 0.f;
+    uint32_t m_grid_type = 0;     // NanoVDB's GridType (layout.h)
     size_t m_grid_bytes = 0;      // the grid's bytes
     size_t m_backend_bytes = 0;   // what the backend holds for it (padded to 64 B)
     size_t m_majorant_bytes = 0;  // the per-node bounds beside it

@@ -5,7 +5,7 @@
 // One input = the bytes of a file. It is written to a memfd and read through
 // its /proc/self/fd path, exactly as the plugin reads a file, and decoded by
 // the plugin's own decode path (nanovdb_loader::decode_grid):
-//   list_grids -> select_grid("") -> read_grid -> validate_float_grid
+//   list_grids -> select_grid("") -> read_grid -> validate_grid
 //   -> value policy "error" (and, on a copy, "clamp": sanitize_values)
 //   -> plan_readers -> lookups through nanovdb_drjit::Reader with that plan
 //      and with PNanoVDB's own algorithm: root_get_value and
@@ -179,7 +179,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
                 die("clamped max is not finite and >= 0");
             // ... and a second validation of the sanitized bytes agrees
             const nio::ValidatedGrid again =
-                nio::validate_float_grid(file.path, copy.data(), entry.grid_size);
+                nio::validate_grid(file.path, copy.data(), entry.grid_size);
             if (std::memcmp(&again.values().max, &v.max, 4) != 0 ||
                 again.values().value_count != v.value_count)
                 die("sanitized statistics differ from a fresh validation");
@@ -191,7 +191,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
                                              nio::InvalidValues::Error));
         } catch (const nio::Error &) {
             // refused (maybe for its values only): validate alone, look up anyway
-            nio::ValidatedGrid grid = nio::validate_float_grid(file.path, buf.data(), entry.grid_size);
+            nio::ValidatedGrid grid = nio::validate_grid(file.path, buf.data(), entry.grid_size);
             nio::ReaderPlan plan = nio::plan_readers(grid);
             decoded.emplace(nio::DecodedGrid{ std::move(grid), std::move(plan), {} });
         }

@@ -251,7 +251,7 @@ inline Brute brute_force(const nanovdb::FloatGrid &grid) {
     return b;
 }
 
-/// validate_float_grid's summary against the NanoVDB C++ API.
+/// validate_grid's summary against the NanoVDB C++ API.
 inline void check_info_against_nanovdb(const nio::ValidatedGrid &validated,
                                        const nanovdb::FloatGrid &grid) {
     const nio::GridSummary &info = validated.summary();
@@ -295,18 +295,18 @@ inline void check_info_against_nanovdb(const nio::ValidatedGrid &validated,
 }
 
 inline nio::ValidatedGrid validate_handle(const Handle &h, const std::string &label) {
-    return nio::validate_float_grid(label, h.data(), h.size());
+    return nio::validate_grid(label, h.data(), h.size());
 }
 
 /// validate + scan_values, for buffers the test has at hand
 inline nio::ValueScan scan(const std::string &path, const void *data, uint64_t bytes) {
-    return nio::scan_values(nio::validate_float_grid(path, data, bytes));
+    return nio::scan_values(nio::validate_grid(path, data, bytes));
 }
 
 /// validate + sanitize_values, in place
 inline nio::SanitizeResult sanitize(const std::string &path, void *data, uint64_t bytes,
                                     const nio::SanitizeOptions &options = {}) {
-    nio::ValidatedGrid grid = nio::validate_float_grid(path, data, bytes);
+    nio::ValidatedGrid grid = nio::validate_grid(path, data, bytes);
     return nio::sanitize_values(grid, options);
 }
 

@@ -2,6 +2,7 @@
 // read_grid on every file form and codec NanoVDB writes, hostile files, and
 // the real files in ../shared/data ($NVDB_SHARED_DATA), read in place.
 
+#include <nanovdb_drjit/layout.h>
 #include <doctest/doctest.h>
 
 #include "fixtures.h"
@@ -74,7 +75,7 @@ TEST_CASE("files written by NanoVDB 32.4: list_grids, select_grid, read_grid") {
             CHECK(buf.bytes() == handle_bytes(sphere));
             const Handle ref = nanovdb::io::readGrid(path, 0);
             CHECK(buf.bytes() == handle_bytes(ref));
-            const auto info = nio::validate_float_grid(path, buf.data(), buf.size);
+            const auto info = nio::validate_grid(path, buf.data(), buf.size);
             check_info_against_nanovdb(info, *ref.grid<float>());
             CHECK(&nio::select_grid(path, grids, "") == &grids[0]);
         }
@@ -100,7 +101,7 @@ TEST_CASE("files written by NanoVDB 32.4: list_grids, select_grid, read_grid") {
                 const Aligned buf = load(path, grids[i]);
                 CHECK(buf.bytes() == handle_bytes(handles[i]));
                 CHECK(buf.bytes() == handle_bytes(nanovdb::io::readGrid(path, i)));
-                CHECK_NOTHROW(nio::validate_float_grid(path, buf.data(), buf.size));
+                CHECK_NOTHROW(nio::validate_grid(path, buf.data(), buf.size));
             }
             CHECK(expect_offset == fs::file_size(path));
             CHECK(&nio::select_grid(path, grids, "surface") == &grids[1]);
@@ -143,7 +144,7 @@ TEST_CASE("files written by NanoVDB 32.4: list_grids, select_grid, read_grid") {
         CHECK(load(path, grids[2]).bytes() == handle_bytes(nans));
         CHECK(&nio::select_grid(path, grids, "nan_inf") == &grids[2]);
     }
-    SUBCASE("mixed value types: only float grids are selectable") {
+    SUBCASE("mixed value types: only the supported types are selectable") {
         const std::string path = tmp_path("mixed.nvdb");
         std::vector<Handle> handles;
         handles.push_back(typed_grid<double>("dbl", 2.5));
@@ -157,22 +158,26 @@ TEST_CASE("files written by NanoVDB 32.4: list_grids, select_grid, read_grid") {
         CHECK(grids[1].grid_type == 4);
         CHECK(grids[2].grid_type == 6);
         CHECK(grids[3].grid_type == 1);
-        CHECK(&nio::select_grid(path, grids, "") == &grids[3]);
+        // The first grid of a supported type: the Vec3f one
+        CHECK(&nio::select_grid(path, grids, "") == &grids[2]);
         CHECK(&nio::select_grid(path, grids, "density") == &grids[3]);
+        CHECK(&nio::select_grid(path, grids, "2") == &grids[2]);
         CHECK_IO_ERROR(nio::select_grid(path, grids, "dbl"), path, "\"dbl\"", "type double",
-                       "only float grids are supported", "supported types: float");
-        CHECK_IO_ERROR(nio::select_grid(path, grids, "ints"), path, "type int32", "only float");
-        CHECK_IO_ERROR(nio::select_grid(path, grids, "2"), path, "type Vec3f", "only float");
+                       "not supported",
+                       "supported types: float, Half, Fp4, Fp8, Fp16, FpN, Vec3f");
+        CHECK_IO_ERROR(nio::select_grid(path, grids, "ints"), path, "type int32", "not supported");
         // Non-float payloads still decode byte-exactly.
         for (size_t i = 0; i < 3; ++i)
             CHECK(load(path, grids[i]).bytes() == handle_bytes(handles[i]));
 
         const std::string nofloat = tmp_path("nofloat.nvdb");
         handles.pop_back();
+        handles.pop_back();
         nanovdb::io::writeGrids(nofloat, handles, nanovdb::io::Codec::NONE);
         const auto g2 = nio::list_grids(nofloat);
-        CHECK_IO_ERROR(nio::select_grid(nofloat, g2, ""), nofloat, "no float grid",
-                       "0: \"dbl\" (double), 1: \"ints\" (int32), 2: \"vel\" (Vec3f)");
+        CHECK_IO_ERROR(nio::select_grid(nofloat, g2, ""), nofloat,
+                       "no grid of a supported type", "supported types: float, Half",
+                       "0: \"dbl\" (double), 1: \"ints\" (int32)");
     }
     SUBCASE("names take priority over indices; unnamed grids") {
         const std::string path = tmp_path("names.nvdb");
@@ -218,7 +223,7 @@ TEST_CASE("newer file forms: NanoVDB2 header, NanoVDB1 grids, raw grid buffers")
         Bytes expect = sphere_bytes;
         std::memcpy(expect.data(), "NanoVDB1", 8);
         CHECK(buf.bytes() == expect);
-        const auto info = nio::validate_float_grid(path, buf.data(), buf.size);
+        const auto info = nio::validate_grid(path, buf.data(), buf.size);
         CHECK(info.values().max == ref_info.values().max);
         CHECK(info.summary().active_voxel_count == ref_info.summary().active_voxel_count);
         check_info_against_nanovdb(info, *sphere.grid<float>());
@@ -240,7 +245,7 @@ TEST_CASE("newer file forms: NanoVDB2 header, NanoVDB1 grids, raw grid buffers")
         CHECK(e.version == sphere.grid<float>()->version().id());
         const Aligned buf = load(path, e);
         CHECK(buf.bytes() == sphere_bytes);
-        check_info_against_nanovdb(nio::validate_float_grid(path, buf.data(), buf.size),
+        check_info_against_nanovdb(nio::validate_grid(path, buf.data(), buf.size),
                                    *sphere.grid<float>());
     }
     SUBCASE("raw grid buffer, NanoVDB1 grid magic, two grids back to back") {
@@ -259,7 +264,7 @@ TEST_CASE("newer file forms: NanoVDB2 header, NanoVDB1 grids, raw grid buffers")
         Bytes expect = torus_bytes;
         std::memcpy(expect.data(), "NanoVDB1", 8);
         CHECK(buf.bytes() == expect);
-        check_info_against_nanovdb(nio::validate_float_grid(path, buf.data(), buf.size),
+        check_info_against_nanovdb(nio::validate_grid(path, buf.data(), buf.size),
                                    *torus.grid<float>());
     }
     SUBCASE("raw grid whose checksum looks like a segment header") {
@@ -506,23 +511,25 @@ TEST_CASE("the real files in shared/data" * doctest::skip(!fs::is_directory(shar
     std::sort(files.begin(), files.end());
     CHECK(files.size() >= 5);
 
-    SUBCASE("every .nvdb: float grids load, validate and match NanoVDB 32.4's reader") {
+    SUBCASE("every .nvdb: grids of the supported types load and validate; float grids "
+            "match NanoVDB 32.4's reader") {
         for (const auto &path : files) {
             INFO("file: " << path);
             std::vector<nio::GridEntry> grids;
             CHECK_NOTHROW(grids = nio::list_grids(path));
             for (size_t i = 0; i < grids.size(); ++i) {
                 INFO("grid " << i << ": " << grids[i].name);
-                if (grids[i].grid_type != 1) {
+                if (!nanovdb_drjit::layout::value_type(grids[i].grid_type)) {
                     CHECK_IO_ERROR(nio::select_grid(path, grids, std::to_string(i)), path,
-                                   nio::grid_type_name(grids[i].grid_type),
-                                   "only float grids are supported");
+                                   nio::grid_type_name(grids[i].grid_type), "not supported");
                     continue;
                 }
                 const auto &e = nio::select_grid(path, grids, std::to_string(i));
                 const Aligned buf = load(path, e);
                 std::optional<nio::ValidatedGrid> info;
-                CHECK_NOTHROW(info = nio::validate_float_grid(path, buf.data(), buf.size));
+                CHECK_NOTHROW(info = nio::validate_grid(path, buf.data(), buf.size));
+                if (grids[i].grid_type != 1)
+                    continue; // the typed grids: tests/test_value_types.cpp
                 // NanoVDB 32.4 reads these files (major 32 only is checked).
                 const Handle ref = nanovdb::io::readGrid(path, i);
                 CHECK(buf.bytes() == handle_bytes(ref));
@@ -541,27 +548,30 @@ TEST_CASE("the real files in shared/data" * doctest::skip(!fs::is_directory(shar
         CHECK(grids[0].codec == nio::Codec::Zip);
         CHECK(grids[0].grid_class == 1); // level set
         const Aligned buf = load(path, nio::select_grid(path, grids, ""));
-        const auto info = nio::validate_float_grid(path, buf.data(), buf.size);
+        const auto info = nio::validate_grid(path, buf.data(), buf.size);
         CHECK(info.summary().background == doctest::Approx(0.3f));
         CHECK(info.summary().bbox_min[1] == -5);
         CHECK(info.summary().bbox_max[1] == 5);
         CHECK(info.summary().active_voxel_count == 3001);
         CHECK(info.summary().voxel_size[0] == doctest::Approx(0.1));
     }
-    SUBCASE("warp Vec3f and int32 grids (32.3.3, unnamed): clear rejection") {
-        for (const auto &[file, type] : { std::make_pair("warp_vec3f_zip_32.3.3.nvdb", "Vec3f"),
-                                          std::make_pair("warp_int32_zip_32.3.3.nvdb", "int32") }) {
-            const std::string path = dir + "/" + file;
-            const auto grids = nio::list_grids(path);
-            REQUIRE(grids.size() == 1);
-            CHECK(grids[0].name.empty());
-            CHECK(nio::grid_type_name(grids[0].grid_type) == type);
-            CHECK_IO_ERROR(nio::select_grid(path, grids, ""), path, "no float grid", type);
-            CHECK_IO_ERROR(nio::select_grid(path, grids, "0"), path,
-                           (std::string("has type ") + type), "only float grids");
-            // The payload still decodes and equals NanoVDB's.
-            CHECK(load(path, grids[0]).bytes() == handle_bytes(nanovdb::io::readGrid(path, 0)));
-        }
+    SUBCASE("warp int32 grid (32.3.3, unnamed): clear rejection; Vec3f: selected") {
+        const std::string path = dir + "/warp_int32_zip_32.3.3.nvdb";
+        const auto grids = nio::list_grids(path);
+        REQUIRE(grids.size() == 1);
+        CHECK(grids[0].name.empty());
+        CHECK(nio::grid_type_name(grids[0].grid_type) == "int32");
+        CHECK_IO_ERROR(nio::select_grid(path, grids, ""), path, "no grid of a supported type",
+                       "int32");
+        CHECK_IO_ERROR(nio::select_grid(path, grids, "0"), path, "has type int32",
+                       "not supported");
+        // The payload still decodes and equals NanoVDB's.
+        CHECK(load(path, grids[0]).bytes() == handle_bytes(nanovdb::io::readGrid(path, 0)));
+        const std::string vec = dir + "/warp_vec3f_zip_32.3.3.nvdb";
+        const auto vgrids = nio::list_grids(vec);
+        REQUIRE(vgrids.size() == 1);
+        CHECK(nio::grid_type_name(vgrids[0].grid_type) == "Vec3f");
+        CHECK(&nio::select_grid(vec, vgrids, "") == &vgrids[0]);
     }
     SUBCASE("warp OnIndex grids (32.6.1, two grids in one segment)") {
         const std::string path = dir + "/warp_onindex_2grids_zip_32.6.1.nvdb";
@@ -571,19 +581,19 @@ TEST_CASE("the real files in shared/data" * doctest::skip(!fs::is_directory(shar
         CHECK(grids[0].version == packed_version(32, 6, 1));
         CHECK(grids[1].segment == 0);
         CHECK_IO_ERROR(nio::select_grid(path, grids, "grid-1"), path, "type OnIndex",
-                       "only float grids");
+                       "not supported");
         for (size_t i = 0; i < 2; ++i) {
             const Aligned buf = load(path, grids[i]);
             CHECK(buf.bytes() == handle_bytes(nanovdb::io::readGrid(path, i)));
-            CHECK_IO_ERROR(nio::validate_float_grid(path, buf.data(), buf.size), path,
-                           "OnIndex", "only float grids");
+            CHECK_IO_ERROR(nio::validate_grid(path, buf.data(), buf.size), path,
+                           "OnIndex", "not supported");
         }
     }
     SUBCASE("fVDB batch of 4 grids under one metadata entry (32.5.0, BLOSC)") {
         // Reading: the metadata's single grid "z" is the *first* grid of the
         // decoded payload; read_grid returns the whole decoded payload
         // (grid_size bytes, byte-identical to NanoVDB's readGrid), and
-        // validate_float_grid uses the first grid's own mGridSize.
+        // validate_grid uses the first grid's own mGridSize.
         const std::string path = dir + "/fvdb_batch4_ls_blosc_32.5.0.nvdb";
         const auto grids = nio::list_grids(path);
         REQUIRE(grids.size() == 1);
@@ -594,7 +604,7 @@ TEST_CASE("the real files in shared/data" * doctest::skip(!fs::is_directory(shar
         const Aligned buf = load(path, nio::select_grid(path, grids, "z"));
         const Handle ref = nanovdb::io::readGrid(path, 0);
         CHECK(buf.bytes() == handle_bytes(ref));
-        const auto info = nio::validate_float_grid(path, buf.data(), buf.size);
+        const auto info = nio::validate_grid(path, buf.data(), buf.size);
         check_info_against_nanovdb(info, *ref.grid<float>());
         const Bytes all = buf.bytes();
         CHECK(peek<uint64_t>(all, 32) < grids[0].grid_size);
@@ -605,7 +615,7 @@ TEST_CASE("the real files in shared/data" * doctest::skip(!fs::is_directory(shar
             INFO("batch grid " << count << " at byte " << offset);
             CHECK(peek<uint32_t>(all, offset + 24) == uint32_t(count)); // mGridIndex
             CHECK(peek<uint32_t>(all, offset + 28) == 4u);              // mGridCount
-            CHECK_NOTHROW(nio::validate_float_grid(path, all.data() + offset, all.size() - offset));
+            CHECK_NOTHROW(nio::validate_grid(path, all.data() + offset, all.size() - offset));
             offset += peek<uint64_t>(all, offset + 32);
             ++count;
         }

@@ -40,7 +40,7 @@ TEST_CASE("validated but garbage buffers: lookups never leave the buffer") {
             }
             std::optional<nio::ValidatedGrid> validated;
             try {
-                validated = nio::validate_float_grid("mutant", g.data(), size);
+                validated = nio::validate_grid("mutant", g.data(), size);
             } catch (const nio::Error &) {
             }
             if (validated) {

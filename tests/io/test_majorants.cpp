@@ -113,7 +113,7 @@ TEST_CASE("max_in_box: tight where the grid's maximum is not") {
         const Handle h = nan_inf_grid();
         Aligned a(h.size());
         std::memcpy(a.data(), h.data(), h.size());
-        nio::ValidatedGrid v = nio::validate_float_grid("nans", a.data(), a.size);
+        nio::ValidatedGrid v = nio::validate_grid("nans", a.data(), a.size);
         const nio::IndexBox b = box(-8, -8, -8, 8, 8, 8); // the +Inf voxel (2, 0, 0)
         CHECK(nio::max_in_box(v, b) == std::numeric_limits<float>::infinity());
         nio::sanitize_values(v);

@@ -1,4 +1,4 @@
-// Validation (src/loader/validation.cpp): validate_float_grid's summary and
+// Validation (src/loader/validation.cpp): validate_grid's summary and
 // value statistics against NanoVDB's C++ API, and its refusals of hostile
 // buffers.
 
@@ -6,7 +6,7 @@
 
 #include "fixtures.h"
 
-TEST_CASE("validate_float_grid on NanoVDB-made float grids") {
+TEST_CASE("validate_grid on NanoVDB-made float grids") {
     // Built once for all subcases (doctest re-runs this body for each)
     static const Handle sphere = fog_sphere(), torus = ls_torus(), tiles = tile_grid(),
                         nans = nan_inf_grid(), empty = empty_grid();
@@ -74,13 +74,13 @@ TEST_CASE("validate_float_grid on NanoVDB-made float grids") {
         Bytes b = handle_bytes(sphere);
         const Bytes t = handle_bytes(torus);
         b.insert(b.end(), t.begin(), t.end());
-        const auto info = nio::validate_float_grid("two", b.data(), b.size());
+        const auto info = nio::validate_grid("two", b.data(), b.size());
         check_info_against_nanovdb(info, *sphere.grid<float>());
     }
 }
 
 // =====================================================================================
-TEST_CASE("validate_float_grid rejects hostile buffers") {
+TEST_CASE("validate_grid rejects hostile buffers") {
     static const Handle sphere = fog_sphere();
     static const Handle tiles = tile_grid();
     const auto &grid = *sphere.grid<float>();
@@ -98,17 +98,17 @@ TEST_CASE("validate_float_grid rejects hostile buffers") {
     const uint64_t leaf0 = offset_in(grid, tree.getFirstNode<0>());
     CHECK(tree_off == 672);
 
-    auto validate = [&](const Bytes &b) { return nio::validate_float_grid(p, b.data(), b.size()); };
+    auto validate = [&](const Bytes &b) { return nio::validate_grid(p, b.data(), b.size()); };
     CHECK_NOTHROW(validate(good));
 
     SUBCASE("too small") {
         Bytes b(good.begin(), good.begin() + 700);
         CHECK_IO_ERROR(validate(b), p, "700 bytes", "too small");
-        CHECK_IO_ERROR(nio::validate_float_grid(p, static_cast<const void *>(nullptr), 0), p, "too small");
+        CHECK_IO_ERROR(nio::validate_grid(p, static_cast<const void *>(nullptr), 0), p, "too small");
     }
     SUBCASE("16 GiB or more") {
         // Rejected from the size alone, before any byte is read.
-        CHECK_IO_ERROR(nio::validate_float_grid(p, good.data(), uint64_t(1) << 34), p, "16 GiB");
+        CHECK_IO_ERROR(nio::validate_grid(p, good.data(), uint64_t(1) << 34), p, "16 GiB");
     }
     SUBCASE("wrong magic") {
         Bytes b = good;
@@ -129,12 +129,15 @@ TEST_CASE("validate_float_grid rejects hostile buffers") {
         poke<uint32_t>(b, 16, packed_version(33, 1, 2));
         CHECK_IO_ERROR(validate(b), p, "33.1.2");
     }
-    SUBCASE("not a float grid") {
+    SUBCASE("a type without a reader") {
         Bytes b = good;
         poke<uint32_t>(b, 636, 2);
-        CHECK_IO_ERROR(validate(b), p, "double", "only float grids");
+        CHECK_IO_ERROR(validate(b), p, "double", "not supported",
+                       "supported types: float, Half, Fp4, Fp8, Fp16, FpN, Vec3f");
         poke<uint32_t>(b, 636, 20);
-        CHECK_IO_ERROR(validate(b), p, "OnIndex", "only float grids");
+        CHECK_IO_ERROR(validate(b), p, "OnIndex", "not supported");
+        poke<uint32_t>(b, 636, 4000);
+        CHECK_IO_ERROR(validate(b), p, "unknown (4000)", "not supported");
     }
     SUBCASE("mGridSize larger than the buffer") {
         Bytes b = good;
@@ -237,14 +240,14 @@ TEST_CASE("validate_float_grid rejects hostile buffers") {
         REQUIRE(value_tile < troot.tileCount());
         Bytes b = handle_bytes(tiles);
         poke<int64_t>(b, offset_in(tg, troot.data()->tile(value_tile)) + 8, 64);
-        CHECK_IO_ERROR(nio::validate_float_grid(p, b.data(), b.size()), p,
+        CHECK_IO_ERROR(nio::validate_grid(p, b.data(), b.size()), p,
                        ("root tile " + std::to_string(value_tile)), "upper");
     }
 }
 
 // =====================================================================================
 
-TEST_CASE("validate_float_grid: node arrays must not overlap; children at the right level") {
+TEST_CASE("validate_grid: node arrays must not overlap; children at the right level") {
     static const Handle sphere = fog_sphere();
     const auto &grid = *sphere.grid<float>();
     const auto &tree = grid.tree();
@@ -254,7 +257,7 @@ TEST_CASE("validate_float_grid: node arrays must not overlap; children at the ri
     const uint64_t root_off = offset_in(grid, &tree.root());
     const uint64_t upper0 = offset_in(grid, tree.getFirstNode<2>());
     const uint64_t lower0 = offset_in(grid, tree.getFirstNode<1>());
-    auto validate = [&](const Bytes &b) { return nio::validate_float_grid(p, b.data(), b.size()); };
+    auto validate = [&](const Bytes &b) { return nio::validate_grid(p, b.data(), b.size()); };
 
     SUBCASE("the leaf array overlapping the root") {
         Bytes b = good;

@@ -98,7 +98,7 @@ TEST_CASE("scan_values: counts, and the coordinate of the first offending value"
         CHECK(nio::describe_invalid_values(s) ==
               "2 NaN (first: voxel (0, 0, 0)), 1 +Inf and 1 -Inf values "
               "(first infinite: voxel (2, 0, 0))");
-        // Agrees with validate_float_grid's counts
+        // Agrees with validate_grid's counts
         const auto info = validate_handle(h, "nans");
         CHECK(info.values().nan_count == s.nan_count);
         CHECK(info.values().inf_count() == s.posinf_count + s.neginf_count);
@@ -208,7 +208,7 @@ TEST_CASE("sanitize_values replaces NaN, Inf and negatives in place") {
         CHECK(r.neginf == 1);
         CHECK(r.negative == 0);
         CHECK(r.total() == 4);
-        const auto info = nio::validate_float_grid("nans", a.data(), a.size);
+        const auto info = nio::validate_grid("nans", a.data(), a.size);
         CHECK(info.values().nan_count == 0);
         CHECK(info.values().inf_count() == 0);
         CHECK(info.values().max == 4.0f);
@@ -240,7 +240,7 @@ TEST_CASE("sanitize_values replaces NaN, Inf and negatives in place") {
         std::memcpy(ta.data(), t.data(), t.size());
         const auto rt = sanitize("tiles", ta.data(), ta.size);
         CHECK(rt.negative == 2);
-        const auto it = nio::validate_float_grid("tiles", ta.data(), ta.size);
+        const auto it = nio::validate_grid("tiles", ta.data(), ta.size);
         CHECK(it.values().min == 0.0f);
         CHECK(it.values().max == 100.0f);
         CHECK(scan("tiles", ta.data(), ta.size).negative_count == 0);
@@ -272,7 +272,7 @@ TEST_CASE("sanitize_values replaces NaN, Inf and negatives in place") {
         Aligned a(h.size());
         std::memcpy(a.data(), h.data(), h.size());
         sanitize("allinf", a.data(), a.size);
-        const auto info = nio::validate_float_grid("allinf", a.data(), a.size);
+        const auto info = nio::validate_grid("allinf", a.data(), a.size);
         CHECK(info.values().min == 0.0f);
         CHECK(info.values().max == 0.0f);
     }
@@ -285,10 +285,10 @@ TEST_CASE("sanitize_values keeps the grid's statistics true; apply_value_policy"
         const Handle h = tile_grid(); // negatives: -50 (upper tile), -2 (voxel)
         Aligned a(h.size());
         std::memcpy(a.data(), h.data(), h.size());
-        nio::ValidatedGrid grid = nio::validate_float_grid("tiles", a.data(), a.size);
+        nio::ValidatedGrid grid = nio::validate_grid("tiles", a.data(), a.size);
         CHECK(grid.values().negative_count == 2);
         nio::sanitize_values(grid);
-        const nio::ValidatedGrid fresh = nio::validate_float_grid("tiles", a.data(), a.size);
+        const nio::ValidatedGrid fresh = nio::validate_grid("tiles", a.data(), a.size);
         const nio::ValueStats &x = grid.values(), &y = fresh.values();
         CHECK(x.min == y.min);
         CHECK(x.max == y.max);
@@ -301,7 +301,7 @@ TEST_CASE("sanitize_values keeps the grid's statistics true; apply_value_policy"
     }
     SUBCASE("a read-only grid cannot be sanitized") {
         const Handle h = nan_inf_grid();
-        nio::ValidatedGrid grid = nio::validate_float_grid("ro", static_cast<const void *>(h.data()),
+        nio::ValidatedGrid grid = nio::validate_grid("ro", static_cast<const void *>(h.data()),
                                                            h.size());
         CHECK_IO_ERROR(nio::sanitize_values(grid), "ro", "read-only");
     }
@@ -309,7 +309,7 @@ TEST_CASE("sanitize_values keeps the grid's statistics true; apply_value_policy"
         const Handle h = nan_inf_grid();
         Aligned a(h.size());
         std::memcpy(a.data(), h.data(), h.size());
-        nio::ValidatedGrid grid = nio::validate_float_grid("f.nvdb", a.data(), a.size);
+        nio::ValidatedGrid grid = nio::validate_grid("f.nvdb", a.data(), a.size);
         CHECK_IO_ERROR(nio::apply_value_policy(grid, "nan_inf", nio::InvalidValues::Error),
                        "f.nvdb", "grid \"nan_inf\"", "2 NaN (first: voxel (0, 0, 0))",
                        "1 +Inf and 1 -Inf", "invalid_values=\"clamp\"");
@@ -319,7 +319,7 @@ TEST_CASE("sanitize_values keeps the grid's statistics true; apply_value_policy"
         const Handle h = tile_grid();
         Aligned a(h.size());
         std::memcpy(a.data(), h.data(), h.size());
-        nio::ValidatedGrid grid = nio::validate_float_grid("t.nvdb", a.data(), a.size);
+        nio::ValidatedGrid grid = nio::validate_grid("t.nvdb", a.data(), a.size);
         const auto warnings = nio::apply_value_policy(grid, "tiles", nio::InvalidValues::Error);
         REQUIRE(warnings.size() == 1);
         check_message(warnings[0], "t.nvdb",
@@ -330,7 +330,7 @@ TEST_CASE("sanitize_values keeps the grid's statistics true; apply_value_policy"
         const Handle h = nan_inf_grid();
         Aligned a(h.size());
         std::memcpy(a.data(), h.data(), h.size());
-        nio::ValidatedGrid grid = nio::validate_float_grid("c.nvdb", a.data(), a.size);
+        nio::ValidatedGrid grid = nio::validate_grid("c.nvdb", a.data(), a.size);
         const auto warnings = nio::apply_value_policy(grid, "nan_inf", nio::InvalidValues::Clamp);
         REQUIRE(warnings.size() == 1);
         check_message(warnings[0], "c.nvdb", { "replaced 2 NaN by 0", "1 +Inf", "1 -Inf and 0 negative" });
