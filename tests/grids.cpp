@@ -525,6 +525,14 @@ uint64_t dense_voxel_count(const nanovdb::NanoGrid<float> &grid) {
 
 void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &path,
                      const std::function<float(const nanovdb::Coord &)> &value) {
+    write_dense_vol(grid, path, 1, [&](const nanovdb::Coord &ijk, float *out) {
+        out[0] = value ? value(ijk) : grid.getAccessor().getValue(ijk);
+    });
+}
+
+void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &path,
+                     int channels,
+                     const std::function<void(const nanovdb::Coord &, float *)> &values) {
     const uint64_t count = dense_voxel_count(grid);
     if (count > max_dense_voxels) {
         std::ostringstream msg;
@@ -567,19 +575,22 @@ void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &pa
     put_i32(res[0]);
     put_i32(res[1]);
     put_i32(res[2]);
-    put_i32(1); // channels
+    put_i32(channels);
     for (int a = 0; a < 3; ++a) // bbox min: the index bbox [min, max + 1]
         put_f32(float(min[a]));
     for (int a = 0; a < 3; ++a)
         put_f32(float(int64_t(min[a]) + res[a]));
 
-    auto acc = grid.getAccessor();
     for (int32_t z = 0; z < res[2]; ++z) {
         for (int32_t y = 0; y < res[1]; ++y)
             for (int32_t x = 0; x < res[0]; ++x) {
-                const nanovdb::Coord ijk(min[0] + x, min[1] + y, min[2] + z);
-                const float v = empty ? grid.tree().background() : acc.getValue(ijk);
-                put_f32(value ? value(empty ? nanovdb::Coord(0, 0, 0) : ijk) : v);
+                // an empty grid: its background, read at the origin
+                const nanovdb::Coord ijk = empty ? nanovdb::Coord(0, 0, 0)
+                                                 : nanovdb::Coord(min[0] + x, min[1] + y, min[2] + z);
+                float v[3] = { 0.f, 0.f, 0.f };
+                values(ijk, v);
+                for (int c = 0; c < channels; ++c)
+                    put_f32(v[c]);
             }
         file.write(reinterpret_cast<const char *>(bytes.data()), std::streamsize(bytes.size()));
         bytes.clear();

@@ -80,4 +80,10 @@ uint64_t dense_voxel_count(const nanovdb::NanoGrid<float> &grid);
 void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &path,
                      const std::function<float(const nanovdb::Coord &)> &value = {});
 
+/// The same with `channels` (1 or 3) values per voxel from values(ijk, out):
+/// the box is `grid`'s, the values those of a grid of the same topology
+void write_dense_vol(const nanovdb::NanoGrid<float> &grid, const std::string &path,
+                     int channels,
+                     const std::function<void(const nanovdb::Coord &, float *)> &values);
+
 } // namespace nvdb_test

@@ -3,7 +3,7 @@
 // Used by the pytest suite.
 //
 //   nvdb_make_test_grid NAME OUT.nvdb [--dense OUT.vol] [--codec none|zip|blosc]
-//                       [--scale N] [--type float|fp4|fp8|fp16|fpn|half]
+//                       [--scale N] [--type float|fp4|fp8|fp16|fpn|half|vec3f]
 //
 // --type: the grid in another value type (tests/typed_grids.h); --dense then
 // exports its decoded values (NanoVDB's accessor; Half: F16C). Half grids are
@@ -31,7 +31,7 @@ namespace {
 
 const char *usage =
     "usage: nvdb_make_test_grid NAME OUT.nvdb [--dense OUT.vol] [--codec none|zip|blosc] "
-    "[--scale N] [--type float|fp4|fp8|fp16|fpn|half]\n"
+    "[--scale N] [--type float|fp4|fp8|fp16|fpn|half|vec3f]\n"
     "       nvdb_make_test_grid --list\n";
 
 int bad_args(const std::string &message) {
@@ -73,7 +73,7 @@ int main(int argc, char **argv) {
                 return bad_args("--dense needs a file name");
         } else if (arg == "--type") {
             if (!value(type))
-                return bad_args("--type needs one of float, fp4, fp8, fp16, fpn, half");
+                return bad_args("--type needs one of float, fp4, fp8, fp16, fpn, half, vec3f");
             try {
                 nvdb_test::grid_type_of(type);
             } catch (const std::exception &e) {
@@ -149,7 +149,9 @@ int main(int argc, char **argv) {
         } else {
             nanovdb::io::writeGrid(out_path, typed.handle, codec);
         }
-        if (!dense_path.empty())
+        if (!dense_path.empty() && type == "vec3f")
+            nvdb_test::write_dense_vol(*grid, dense_path, 3, typed.reference3());
+        else if (!dense_path.empty())
             nvdb_test::write_dense_vol(*grid, dense_path,
                                        type == "float" ? nullptr : typed.reference());
         const auto t2 = std::chrono::steady_clock::now();

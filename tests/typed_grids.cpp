@@ -12,7 +12,8 @@
 namespace nvdb_test {
 
 const std::vector<std::string> &type_names() {
-    static const std::vector<std::string> names = { "float", "fp4", "fp8", "fp16", "fpn", "half" };
+    static const std::vector<std::string> names = { "float", "fp4", "fp8", "fp16", "fpn", "half",
+                                                    "vec3f" };
     return names;
 }
 
@@ -23,9 +24,12 @@ uint32_t grid_type_of(const std::string &type) {
     if (type == "fp8") return 14;
     if (type == "fp16") return 15;
     if (type == "fpn") return 16;
+    if (type == "vec3f") return 6;
     throw std::invalid_argument("unknown value type \"" + type +
-                                "\"; valid: float, fp4, fp8, fp16, fpn, half");
+                                "\"; valid: float, fp4, fp8, fp16, fpn, half, vec3f");
 }
+
+std::array<float, 3> vec3_of(float v) { return { v, v * 0.5f + 0.1f, v * v }; }
 
 uint16_t f16c_from_float(float f) {
     return uint16_t(_cvtss_sh(f, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
@@ -144,7 +148,24 @@ TypedGrid make_typed_grid(const std::string &name, const std::string &type, int 
         g.words = to_half(*g.float_grid.grid<float>(), g.bytes);
         return g;
     }
-    if (type == "float") g.handle = nanovdb::openToNanoVDB(*vdb);
+    if (type == "vec3f") {
+        auto vec = openvdb::Vec3SGrid::create(openvdb::Vec3s(vec3_of(vdb->background()).data()));
+        vec->setTransform(vdb->transform().copy());
+        vec->setName(vdb->getName());
+        auto &tree = vec->tree();
+        for (auto it = vdb->cbeginValueAll(); it; ++it) { // voxels and tiles, on and off
+            const std::array<float, 3> c = vec3_of(*it);
+            const openvdb::Vec3s v(c[0], c[1], c[2]);
+            if (it.isVoxelValue()) {
+                tree.setValue(it.getCoord(), v);
+                if (!it.isValueOn())
+                    tree.setValueOff(it.getCoord());
+            } else {
+                tree.addTile(it.getLevel(), it.getCoord(), v, it.isValueOn());
+            }
+        }
+        g.handle = nanovdb::openToNanoVDB(*vec);
+    } else if (type == "float") g.handle = nanovdb::openToNanoVDB(*vdb);
     else if (type == "fp4") g.handle = convert<nanovdb::Fp4>(*vdb);
     else if (type == "fp8") g.handle = convert<nanovdb::Fp8>(*vdb);
     else if (type == "fp16") g.handle = convert<nanovdb::Fp16>(*vdb);
@@ -157,6 +178,14 @@ TypedGrid make_typed_grid(const std::string &name, const std::string &type, int 
 
 bool has_typed_grid(const std::string &name, const std::string &type) {
     return type != "fpn" || make_vdb_grid(name)->tree().leafCount() != 0;
+}
+
+std::function<void(const nanovdb::Coord &, float *)> TypedGrid::reference3() const {
+    auto acc = handle.grid<nanovdb::Vec3f>()->getAccessor();
+    return [acc](const nanovdb::Coord &ijk, float *out) mutable {
+        const nanovdb::Vec3f v = acc.getValue(ijk);
+        out[0] = v[0]; out[1] = v[1]; out[2] = v[2];
+    };
 }
 
 std::function<float(const nanovdb::Coord &)> TypedGrid::reference() const {

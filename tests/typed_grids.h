@@ -6,11 +6,14 @@
 // cannot build Half grids: to_half() rewrites a float grid into PNanoVDB's
 // Half layout (pnanovdb_grid_type_constants[PNANOVDB_GRID_TYPE_HALF]), every
 // value rounded to nearest even by the CPU's F16C instruction, so that the
-// reference rounding is not ours.
+// reference rounding is not ours. Vec3f grids hold vec3_of(v) = (v, v / 2 +
+// 0.1, v^2) for each value v of the float grid (voxels and tiles, active or
+// not), converted from an openvdb::Vec3SGrid by openToNanoVDB.
 #pragma once
 
 #include "grids.h"
 
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -18,7 +21,7 @@
 
 namespace nvdb_test {
 
-/// "float", "fp4", "fp8", "fp16", "fpn", "half"
+/// "float", "fp4", "fp8", "fp16", "fpn", "half", "vec3f"
 const std::vector<std::string> &type_names();
 
 /// NanoVDB's GridType value of a type name
@@ -37,6 +40,8 @@ struct TypedGrid {
     /// The value at ijk as NanoVDB's accessor decodes it (Fp*: NanoGrid<FpX>;
     /// half: the float grid's value rounded by F16C)
     std::function<float(const nanovdb::Coord &)> reference() const;
+    /// vec3f: the 3 channels as NanoVDB's accessor reads them
+    std::function<void(const nanovdb::Coord &, float *)> reference3() const;
 };
 
 /// Throws std::invalid_argument for "fpn" on a grid without leaves
@@ -44,6 +49,9 @@ TypedGrid make_typed_grid(const std::string &name, const std::string &type, int 
 
 /// Whether make_typed_grid(name, type) can be built
 bool has_typed_grid(const std::string &name, const std::string &type);
+
+/// The colour a vec3f test grid holds where the float grid holds v
+std::array<float, 3> vec3_of(float v);
 
 /// IEEE binary16 conversions by the CPU (F16C), round to nearest even
 uint16_t f16c_from_float(float f);

@@ -15,6 +15,7 @@
 #include <nanovdb_drjit/majorant_table.h>
 #include <nanovdb_loader/validation.h>
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -35,6 +36,11 @@ IndexBox lookup_box(const GridSummary &summary, bool trilinear);
 /// `box` returns. O(nodes the box touches), plus 512 values for each leaf
 /// the box cuts.
 float max_in_box(const ValidatedGrid &grid, const IndexBox &box);
+
+/// The same per channel, for Vec3f grids (one bound per channel: NaN
+/// skipped, -Inf where the box holds none); a scalar grid's max_in_box()
+/// three times. Decodes every value in the box (whole leaves included).
+std::array<float, 3> max_in_box_per_channel(const ValidatedGrid &grid, const IndexBox &box);
 
 /**
  * Per-node majorants for majorant tracking (nanovdb_drjit/majorant_walk.h):

@@ -37,9 +37,15 @@ bool entry_range(const int64_t origin[3], uint32_t log2dim, uint32_t log2entry,
 
 class BoxMax {
 public:
-    BoxMax(const ValidatedGrid &grid, const IndexBox &box)
+    /// per_channel: also the largest value of each channel (Vec3f)
+    BoxMax(const ValidatedGrid &grid, const IndexBox &box, bool per_channel = false)
         : m_grid(grid), m_box(box), m_buf(grid.data()), m_codec(grid.summary().grid_type),
-          m_c(m_codec.constants()) {}
+          m_c(m_codec.constants()), m_per_channel(per_channel && m_codec.channels() > 1) {}
+
+    /// The largest value of each channel (valid after run(); -Inf where none)
+    float channel_max[3] = { -std::numeric_limits<float>::infinity(),
+                             -std::numeric_limits<float>::infinity(),
+                             -std::numeric_limits<float>::infinity() };
 
     float run() {
         const GridSummary &s = m_grid.summary();
@@ -64,7 +70,7 @@ public:
             ++covered;
             const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
             if (child == 0)
-                include(m_codec.tile_bound(m_buf + tile + m_c.root_tile_off_value));
+                include_tile(m_buf + tile + m_c.root_tile_off_value);
             else
                 internal(2, uint64_t(int64_t(root) + child), origin);
         }
@@ -75,7 +81,7 @@ public:
             blocks *= uint64_t((int64_t(m_box.hi[a]) >> layout::ROOT_TILE_LOG2) -
                                (int64_t(m_box.lo[a]) >> layout::ROOT_TILE_LOG2) + 1);
         if (covered < blocks)
-            include(m_codec.tile_bound(m_buf + root + m_c.root_off_background));
+            include_tile(m_buf + root + m_c.root_off_background);
         return m_any ? m_max : std::numeric_limits<float>::quiet_NaN();
     }
 
@@ -85,6 +91,19 @@ private:
             return;
         m_max = m_any ? std::max(m_max, v) : v;
         m_any = true;
+    }
+    /// A value of `channels` floats
+    void include_value(const float *v) {
+        include(m_codec.bound(v));
+        if (m_per_channel)
+            for (int k = 0; k < 3; ++k)
+                if (!std::isnan(v[k]))
+                    channel_max[k] = std::max(channel_max[k], v[k]);
+    }
+    void include_tile(const uint8_t *p) {
+        float v[3] = { 0.f, 0.f, 0.f };
+        m_codec.tile(p, v);
+        include_value(v);
     }
 
     /// An upper (level 2) or lower (level 1) node at byte `node`
@@ -106,7 +125,7 @@ private:
                     const bool child =
                         (load<uint32_t>(m_buf + node + mask_off + 4 * (e >> 5)) >> (e & 31)) & 1u;
                     if (!child) {
-                        include(m_codec.tile_bound(m_buf + entry));
+                        include_tile(m_buf + entry);
                         continue;
                     }
                     const int64_t sub[3] = { origin[0] + (i << log2entry),
@@ -126,14 +145,17 @@ private:
             return;
         const bool whole = first[0] == 0 && first[1] == 0 && first[2] == 0 && last[0] == 7 &&
                            last[1] == 7 && last[2] == 7;
-        if (whole) {
+        if (whole && !m_per_channel) {
             include(m_grid.leaf_max()[size_t(m_grid.leaf_containing(node))]);
             return;
         }
         for (int64_t i = first[0]; i <= last[0]; ++i)
             for (int64_t j = first[1]; j <= last[1]; ++j)
-                for (int64_t k = first[2]; k <= last[2]; ++k)
-                    include(m_codec.leaf_bound(m_buf + node, uint32_t((i << 6) | (j << 3) | k)));
+                for (int64_t k = first[2]; k <= last[2]; ++k) {
+                    float v[3] = { 0.f, 0.f, 0.f };
+                    m_codec.leaf_value(m_buf + node, uint32_t((i << 6) | (j << 3) | k), v);
+                    include_value(v);
+                }
     }
 
     const ValidatedGrid &m_grid;
@@ -141,6 +163,7 @@ private:
     const uint8_t *m_buf;
     const detail::ValueCodec m_codec;
     const layout::GridTypeConstants &m_c;
+    const bool m_per_channel;
     float m_max = 0.f;
     bool m_any = false;
 };
@@ -167,6 +190,14 @@ IndexBox lookup_box(const GridSummary &s, bool trilinear) {
 
 float max_in_box(const ValidatedGrid &grid, const IndexBox &box) {
     return BoxMax(grid, box).run();
+}
+
+std::array<float, 3> max_in_box_per_channel(const ValidatedGrid &grid, const IndexBox &box) {
+    BoxMax m(grid, box, true);
+    const float all = m.run();
+    if (detail::ValueCodec(grid.summary().grid_type).channels() == 1)
+        return { all, all, all };
+    return { m.channel_max[0], m.channel_max[1], m.channel_max[2] };
 }
 
 } // namespace nanovdb_loader

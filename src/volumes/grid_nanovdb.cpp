@@ -2,6 +2,7 @@
 #include <mitsuba/core/properties.h>
 #include <mitsuba/core/string.h>
 #include <mitsuba/core/transform.h>
+#include <mitsuba/render/srgb.h>
 #include <mitsuba/render/volume.h>
 
 #include <nanovdb_drjit/backend_buffer.h>
@@ -12,7 +13,9 @@
 #include <nanovdb_loader/majorants.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 
+#include <array>
 #include <atomic>
+#include <tuple>
 #include <cstdlib>
 #include <cstring>
 #include <memory>
@@ -150,6 +153,8 @@ public:
     using GridBuffer = std::conditional_t<dr::is_jit_v<Float>, UInt32,
                                           std::unique_ptr<uint32_t[], void (*)(void *)>>;
     using Reader = nanovdb_drjit::Reader<UInt32>;
+    /// Per-value scales of a spectral Vec3f grid: a JIT array or a host vector
+    using ScalarGridScales = std::conditional_t<dr::is_jit_v<Float>, Float, std::vector<float>>;
 
     NanoVDBVolume(const Properties &props) : Base(props), m_grid(empty_grid_buffer()) {
         fs::path file_path =
@@ -171,6 +176,7 @@ public:
                   "one of: \"error\" or \"clamp\"", m_filename, invalid);
 
         m_use_grid_transform = props.get<bool>("use_grid_transform", false);
+        m_raw = props.get<bool>("raw", false);
         m_count = props.get<bool>("count_lookups", false);
         if constexpr (dr::is_jit_v<Float>) {
             if (m_count) {
@@ -185,7 +191,7 @@ public:
         if (m_use_grid_transform)
             set_grid_transform(summary);
         set_cell_transform(summary);
-        m_channel_count = 1;
+        m_channel_count = m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F ? 3 : 1;
         Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
             m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
             m_grid_bytes, m_max_host);
@@ -195,28 +201,65 @@ public:
     //  Volume interface
     // =====================================================================
 
+    // Vec3f grids behave like a 3-channel gridvolume: eval() is the colour
+    // (RGB), its luminance (monochrome) or its sRGB-model spectrum
+    // (spectral; raw=true refuses, as gridvolume does); eval_1() the
+    // luminance; eval_3() the raw vector (not in spectral variants unless raw).
+
     UnpolarizedSpectrum eval(const Interaction3f &it, Mask active) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
+        if (m_channel_count == 3 && is_spectral_v<Spectrum> && m_raw)
+            Throw("eval(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for a "
+                  "spectrum, but its conversion into spectra was disabled (raw=true)",
+                  m_filename, m_grid_name);
         if (dr::none_or<false>(active))
             return dr::zeros<UnpolarizedSpectrum>();
-        return UnpolarizedSpectrum(lookup(it, active));
+        if (m_channel_count == 1)
+            return UnpolarizedSpectrum(lookup(it, active));
+        if constexpr (is_monochromatic_v<Spectrum>)
+            return UnpolarizedSpectrum(luminance(Color3f(lookup3(it, active))));
+        else if constexpr (is_spectral_v<Spectrum>)
+            return lookup_spectral(it, active);
+        else
+            return UnpolarizedSpectrum(lookup3(it, active));
     }
 
     Float eval_1(const Interaction3f &it, Mask active = true) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
+        if (m_channel_count == 3 && is_spectral_v<Spectrum> && !m_raw)
+            Throw("eval_1(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for "
+                  "a scalar value, but its conversion into spectra was requested (raw=false)",
+                  m_filename, m_grid_name);
         if (dr::none_or<false>(active))
             return dr::zeros<Float>();
+        if (m_channel_count == 3)
+            return luminance(Color3f(lookup3(it, active)));
         return lookup(it, active);
     }
 
     void eval_n(const Interaction3f &it, Float *out, Mask active = true) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
+        if (m_channel_count == 3) {
+            Vector3f v = lookup3(it, active);
+            for (int k = 0; k < 3; ++k)
+                out[k] = v[k];
+            return;
+        }
         out[0] = lookup(it, active);
     }
 
-    Vector3f eval_3(const Interaction3f &, Mask = true) const override {
-        Throw("eval_3(): the nanovdbvolume \"%s\" (grid \"%s\") holds a single "
-              "channel, not a 3D vector", m_filename, m_grid_name);
+    Vector3f eval_3(const Interaction3f &it, Mask active = true) const override {
+        MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
+        if (m_channel_count != 3)
+            Throw("eval_3(): the nanovdbvolume \"%s\" (grid \"%s\") holds a single "
+                  "channel, not a 3D vector", m_filename, m_grid_name);
+        if (is_spectral_v<Spectrum> && !m_raw)
+            Throw("eval_3(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for "
+                  "a 3D vector, but its conversion into spectra was requested (raw=false)",
+                  m_filename, m_grid_name);
+        if (dr::none_or<false>(active))
+            return dr::zeros<Vector3f>();
+        return lookup3(it, active);
     }
 
     dr::Array<Float, 6> eval_6(const Interaction3f &, Mask = true) const override {
@@ -226,7 +269,14 @@ public:
 
     ScalarFloat max() const override { return m_max_host; }
 
-    void max_per_channel(ScalarFloat *out) const override { out[0] = m_max_host; }
+    void max_per_channel(ScalarFloat *out) const override {
+        if (m_channel_count == 3) {
+            for (int k = 0; k < 3; ++k)
+                out[k] = m_max3_host[k];
+            return;
+        }
+        out[0] = m_max_host;
+    }
 
     ScalarVector3i resolution() const override { return m_resolution_host; }
 
@@ -248,6 +298,8 @@ public:
             << "  bytes = " << m_grid_bytes << "," << std::endl
             << "  backend_bytes = " << m_backend_bytes << "," << std::endl
             << "  majorant_bytes = " << m_majorant_bytes << "," << std::endl
+            << (m_scale_bytes ? "  spectral_scale_bytes = " + std::to_string(m_scale_bytes) + ",\n"
+                              : std::string())
             << "  local_majorant_ratio = " << m_majorant_ratio << "," << std::endl
             << counters_string()
             << "  reader = " << (m_reader.root_indexed ? "root index" : "root search")
@@ -286,7 +338,7 @@ public:
 
     Walk walk_begin(const WalkRay &r, const Float &tmin, const Float &tmax,
                     Mask active) const override {
-        Walk walk = with_type([&](auto type) {
+        Walk walk = with_walk_type([&](auto type) {
             return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
                 return nanovdb_drjit::walk_begin<decltype(type)::value>(
                     buf, root, m_majorants, Array3f(r.origin), Array3f(r.direction), tmin,
@@ -299,7 +351,7 @@ public:
     }
 
     Mask walk_advance(Walk &walk, const WalkRay &r, Mask active) const override {
-        Mask more = with_type([&](auto type) {
+        Mask more = with_walk_type([&](auto type) {
             return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
                 return nanovdb_drjit::walk_advance<decltype(type)::value>(
                     buf, root, m_majorants, walk, Array3f(r.origin), Array3f(r.direction),
@@ -444,6 +496,138 @@ private:
         return dr::minimum(result, m_max);
     }
 
+    // ---- Vec3f -------------------------------------------------------------
+
+    /// lookup() for Vec3f grids: the 3-vector, each channel clamped to its max
+    Vector3f lookup3(const Interaction3f &it, Mask active) const {
+        MI_MASK_ARGUMENT(active);
+        count(0, active);
+        auto [nearest, ijk, rel] = index_position(it);
+        Vector3f v;
+        if (nearest) {
+            auto [address, level] = vec3_address(ijk, active);
+            v = nanovdb_drjit::root_read_vec3f<kVec3f>(grid_words(), address, active);
+        } else {
+            v = trilinear_sum(rel, active, [&](const UInt32 &address, const UInt32 &,
+                                               const nanovdb_drjit::Coord<UInt32> &) {
+                return nanovdb_drjit::root_read_vec3f<kVec3f>(grid_words(), address, active);
+            });
+        }
+        return dr::minimum(v, m_max3);
+    }
+
+    /// eval() of a Vec3f grid in spectral variants, as gridvolume's
+    /// interpolate_spectral: the sRGB-model spectrum of each voxel's
+    /// coefficients, interpolated, times the interpolated scale
+    UnpolarizedSpectrum lookup_spectral(const Interaction3f &it, Mask active) const {
+        namespace ndr = nanovdb_drjit;
+        count(0, active);
+        auto [nearest, ijk, rel] = index_position(it);
+        auto corner_value = [&](const UInt32 &address, const UInt32 &level,
+                                const ndr::Coord<UInt32> &c) {
+            Vector3f coeff = ndr::root_read_vec3f<kVec3f>(grid_words(), address, active);
+            Float scale = value_scale(address, level, c, active);
+            return std::make_pair(
+                srgb_model_eval<UnpolarizedSpectrum>(coeff, it.wavelengths), scale);
+        };
+        if (nearest) {
+            auto [address, level] = vec3_address(ijk, active);
+            ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
+            auto [spectrum, scale] = corner_value(address, level, c);
+            return spectrum * scale;
+        }
+        UnpolarizedSpectrum spectrum = trilinear_sum(rel, active, [&](const UInt32 &a, const UInt32 &l,
+                                                                     const ndr::Coord<UInt32> &c) {
+            return corner_value(a, l, c).first;
+        });
+        Float scale = trilinear_sum(rel, active, [&](const UInt32 &a, const UInt32 &l,
+                                                    const ndr::Coord<UInt32> &c) {
+            return value_scale(a, l, c, active);
+        });
+        return spectrum * dr::minimum(scale, m_max);
+    }
+
+    /// The scale of a spectral Vec3f value, found from its address and level
+    /// (see to_spectral_coefficients)
+    Float value_scale(const UInt32 &address, const UInt32 &level,
+                      const nanovdb_drjit::Coord<UInt32> &ijk, const Mask &active) const {
+        namespace ndr = nanovdb_drjit;
+        constexpr const auto &c = ndr::grid_type_traits<kVec3f>::constants;
+        Mask leaf = active & (level == ndr::LEVEL_LEAF),
+             entry = active & ((level == ndr::LEVEL_LOWER) | (level == ndr::LEVEL_UPPER)),
+             tile = active & (level == ndr::LEVEL_ROOT_TILE),
+             background = active & (level == ndr::LEVEL_BACKGROUND);
+        UInt32 n = ndr::leaf_coord_to_offset(ijk);
+        const dr::divisor<uint32_t> leaf_words(c.leaf_size / 4);
+        UInt32 leaf_word = address - (c.leaf_off_table / 4) - 3u * n;
+        UInt32 index = leaf_words(UInt32(leaf_word - m_leaf_begin_word)) * 512u + n;
+        index = dr::select(tile, m_scale_tiles + ((address - m_tile_begin_word -
+                                                   c.root_tile_off_value / 4) >> 3), index);
+        index = dr::select(background, m_scale_background, index);
+        Float from_array;
+        if constexpr (dr::is_jit_v<Float>)
+            from_array = dr::gather<Float>(m_scales, index, leaf | tile | background);
+        else
+            from_array = (leaf | tile | background) ? m_scales[index] : 0.f;
+        // Internal tiles keep their scale in the entry's fourth word
+        Float from_entry = ndr::read_float(grid_words(), UInt32(address + 3u), entry);
+        return dr::select(entry, from_entry, from_array);
+    }
+
+    /// Value address and level of voxel ijk in a Vec3f grid
+    std::pair<UInt32, UInt32> vec3_address(const Vector3i &ijk, const Mask &active) const {
+        namespace ndr = nanovdb_drjit;
+        ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
+        ndr::AddressAndLevel<UInt32> al =
+            m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+                return ndr::root_get_value_address_and_level<kVec3f>(buf, root, c, active);
+            });
+        return { al.address, al.level };
+    }
+
+    /// Trilinear interpolation of read(address, level, ijk) over the 8
+    /// corners, weights and order as trilinear_at()
+    template <typename Read>
+    auto trilinear_sum(const Vector3f &rel, const Mask &active, const Read &read) const {
+        namespace ndr = nanovdb_drjit;
+        Vector3i base = index_floor(rel);
+        Vector3f w1 = rel - Vector3f(base), w0 = 1.f - w1;
+        Vector3i ijk0 = index_add(base, m_index_min);
+        ndr::Coord<UInt32> c(ijk0.x(), ijk0.y(), ijk0.z());
+        ndr::StencilAddresses<UInt32> corners =
+            m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
+                return ndr::root_get_stencil<kVec3f, true>(buf, root, c, active);
+            });
+        decltype(read(UInt32(), UInt32(), c)) sum(0.f);
+        for (uint32_t corner = 0; corner < 8; ++corner) {
+            Float weight = 1.f;
+            for (uint32_t k = 0; k < 3; ++k)
+                weight = weight * (((corner >> k) & 1) ? w1[k] : w0[k]);
+            ndr::Coord<UInt32> ijk =
+                ndr::coord_add<UInt32>(c, corner & 1u, (corner >> 1) & 1u, (corner >> 2) & 1u);
+            sum = dr::fmadd(read(corners.address[corner], corners.level[corner], ijk), weight, sum);
+        }
+        return sum;
+    }
+
+    /// Where a lookup reads: (true, voxel) for nearest, (false, -, index
+    /// position relative to the box minimum) for trilinear (see lookup())
+    std::tuple<bool, Vector3i, Vector3f> index_position(const Interaction3f &it) const {
+        if (!m_use_grid_transform) {
+            Point3f p = m_to_local * it.p;
+            if (m_nearest)
+                return { true, index_add(index_floor(p * m_resolution), m_index_min), Vector3f() };
+            return { false, Vector3i(), dr::fmadd(p, m_resolution, -.5f) };
+        }
+        Point4f p = m_index_from_world * Point4f(it.p.x(), it.p.y(), it.p.z(), 1.f);
+        Vector3f rel(p.x(), p.y(), p.z());
+        if (m_nearest)
+            return { true, index_add(index_floor(rel + .5f), m_index_min), Vector3f() };
+        return { false, Vector3i(), rel };
+    }
+
+    static constexpr uint32_t kVec3f = nanovdb_drjit::layout::GRID_TYPE_VEC3F;
+
     /// floor() to int32 for positions relative to the box minimum. Points
     /// absurdly far outside the volume are clamped first (a float beyond the
     /// int32 range has no int32 floor); they read the background either way.
@@ -472,6 +656,14 @@ private:
             case L::GRID_TYPE_FPN:  return fn(integral_constant<uint32_t, L::GRID_TYPE_FPN>{});
             default:                return fn(integral_constant<uint32_t, L::GRID_TYPE_FLOAT>{});
         }
+    }
+
+    /// with_type() for the majorant walk, which reads every type's tiles
+    template <typename Fn> decltype(auto) with_walk_type(Fn &&fn) const {
+        namespace L = nanovdb_drjit::layout;
+        if (m_grid_type == L::GRID_TYPE_VEC3F)
+            return fn(std::integral_constant<uint32_t, L::GRID_TYPE_VEC3F>{});
+        return with_type(std::forward<Fn>(fn));
     }
 
     /// The grid as the translation reads it: a JIT array or a host pointer
@@ -507,11 +699,10 @@ private:
             const loader::GridEntry &entry = loader::select_grid(m_filename, grids, selector);
             m_grid_name = entry.name;
             m_grid_type = entry.grid_type;
-            if (m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F)
-                Throw("nanovdbvolume: \"%s\": grid \"%s\" has type Vec3f, which this "
-                      "build reads only through the loader (the plugin's 3-channel lookups "
-                      "are not written yet); supported here: float, Half, Fp4, Fp8, Fp16, FpN",
-                      m_filename, m_grid_name);
+            const bool vec3 = m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
+            // Spectral variants turn colours into sRGB-model coefficients
+            // and a scale, as gridvolume does (unless raw)
+            const bool spectral = vec3 && is_spectral_v<Spectrum> && !m_raw;
             m_grid_bytes = (size_t) entry.grid_size;
             m_backend_bytes = ((m_grid_bytes + 63) / 64) * 64;
             size_t word_count = m_backend_bytes / 4;
@@ -535,8 +726,25 @@ private:
             // box, and the ring trilinear stencils reach), not every value
             // the grid stores; lookups are clamped to it (see lookup())
             m_grid_max_host = decoded.grid.values().max;
-            m_max_host = loader::max_in_box(decoded.grid, loader::lookup_box(summary, !m_nearest));
+            const loader::IndexBox box = loader::lookup_box(summary, !m_nearest);
+            m_max_host = loader::max_in_box(decoded.grid, box);
+            if (vec3) { // per channel: the clamp of each channel, max_per_channel()
+                std::array<float, 3> m = loader::max_in_box_per_channel(decoded.grid, box);
+                for (int k = 0; k < 3; ++k)
+                    m_max3_host[k] = m[k];
+            } else {
+                m_max3_host = ScalarVector3f(m_max_host);
+            }
+            // A spectrum is scale * S(coefficients), S in [0, 1], scale =
+            // 2 max(rgb): it is bounded by twice the largest channel
+            const float spectral_factor = spectral ? 2.f : 1.f;
+            if (spectral) {
+                m_max_host *= spectral_factor;
+                m_grid_max_host *= spectral_factor;
+            }
             m_max = dr::opaque<Float>(m_max_host);
+            for (int k = 0; k < 3; ++k)
+                m_max3[k] = dr::opaque<Float>(m_max3_host[k]);
             m_grid_name = summary.name; // the grid's own name (GridData)
             // Per-node bounds for majorant tracking, raised by 2^-20 for the
             // few ulps by which rounded trilinear weights can overshoot
@@ -545,13 +753,17 @@ private:
             for (int k = 0; k < 3; ++k)
                 base[k] = summary.empty ? 0 : int32_t(uint32_t(summary.bbox_min[k]) & ~4095u);
             m_majorants = nanovdb_drjit::MajorantGrid<UInt32>::make(
-                majorants.layout, majorants.values, 1.f + 0x1p-20f, m_max_host, base);
+                majorants.layout, majorants.values, (1.f + 0x1p-20f) * spectral_factor,
+                m_max_host, base);
             m_majorant_bytes = (size_t) majorants.bytes();
-            const double mean = loader::mean_bound(
-                decoded.grid, majorants, loader::lookup_box(summary, !m_nearest), m_max_host);
+            const double mean = spectral_factor * loader::mean_bound(
+                decoded.grid, majorants, box, m_max_host / spectral_factor);
             m_majorant_ratio = m_max_host > 0.f ? ScalarFloat(mean / m_max_host) : 1.f;
             for (int k = 0; k < 3; ++k)
                 m_cell_base_host[k] = base[k];
+
+            if (spectral)
+                to_spectral_coefficients(decoded.grid, summary);
 
             if constexpr (!dr::is_jit_v<Float>) {
                 m_grid = std::move(host);
@@ -569,6 +781,73 @@ private:
         } catch (const loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
+    }
+
+    /**
+     * Spectral variants, Vec3f grids (raw=false): gridvolume turns each
+     * voxel's colour into sRGB-model coefficients of rgb / scale and a scale
+     * = 2 max(rgb), 4 floats instead of 3. Here the coefficients replace the
+     * colour in place, so the tree is not copied, and the scales go where
+     * the grid has room: an internal node's table entry is 16 bytes for 12
+     * of value (its fourth word), and the others (leaf values, root tiles,
+     * the background) into one array beside the grid, indexed from the
+     * value's address: 4 bytes per leaf voxel, +33 % of the leaf bytes (the
+     * price of the fourth number, as for gridvolume). No colour is kept.
+     */
+    void to_spectral_coefficients(const nanovdb_loader::ValidatedGrid &grid,
+                                  const nanovdb_loader::GridSummary &s) {
+        namespace L = nanovdb_drjit::layout;
+        constexpr const L::GridTypeConstants &c = L::GRID_TYPE_CONSTANTS_VEC3F;
+        uint8_t *buf = const_cast<uint8_t *>(grid.data()); // the upload buffer, ours
+        auto convert = [](uint8_t *p) {
+            float rgb[3];
+            std::memcpy(rgb, p, 12);
+            ScalarColor3f color(rgb[0], rgb[1], rgb[2]);
+            float scale = dr::max(color) * 2.f;
+            ScalarColor3f norm = color / dr::maximum(1e-8f, scale);
+            dr::Array<float, 3> coeff = srgb_model_fetch(norm);
+            for (int k = 0; k < 3; ++k)
+                std::memcpy(p + 4 * k, &coeff[k], 4);
+            return scale;
+        };
+        const uint64_t leaves = s.node_count[0];
+        std::vector<float> scales(size_t(leaves) * 512 + s.root_tile_count + 1, 0.f);
+        for (uint64_t n = 0; n < leaves; ++n)
+            for (uint32_t v = 0; v < 512; ++v)
+                scales[size_t(n * 512 + v)] =
+                    convert(buf + grid.leaf_byte(n) + c.leaf_off_table + 12 * v);
+        auto internal = [&](int level, uint64_t table_off, uint64_t mask_off, uint32_t entries,
+                            uint64_t size) {
+            for (uint64_t n = 0; n < s.node_count[level]; ++n) {
+                uint8_t *node = buf + s.node_begin[level] + n * size;
+                for (uint32_t e = 0; e < entries; ++e) {
+                    uint32_t mask;
+                    std::memcpy(&mask, node + mask_off + 4 * (e >> 5), 4);
+                    if ((mask >> (e & 31)) & 1u)
+                        continue; // a child offset
+                    float scale = convert(node + table_off + 16 * uint64_t(e));
+                    std::memcpy(node + table_off + 16 * uint64_t(e) + 12, &scale, 4);
+                }
+            }
+        };
+        internal(2, c.upper_off_table, L::UPPER_OFF_CHILD_MASK, L::UPPER_TABLE_COUNT, c.upper_size);
+        internal(1, c.lower_off_table, L::LOWER_OFF_CHILD_MASK, L::LOWER_TABLE_COUNT, c.lower_size);
+        const uint64_t root = uint64_t(s.root_word) * 4;
+        for (uint32_t t = 0; t < s.root_tile_count; ++t)
+            scales[size_t(leaves * 512 + t)] =
+                convert(buf + root + c.root_size + uint64_t(t) * c.root_tile_size +
+                        c.root_tile_off_value);
+        scales.back() = convert(buf + root + c.root_off_background);
+
+        m_scale_bytes = scales.size() * sizeof(float);
+        m_scale_tiles = dr::opaque<UInt32>(uint32_t(leaves * 512));
+        m_scale_background = dr::opaque<UInt32>(uint32_t(scales.size() - 1));
+        m_leaf_begin_word = dr::opaque<UInt32>(uint32_t(s.node_begin[0] / 4));
+        m_tile_begin_word = dr::opaque<UInt32>(uint32_t(root / 4 + c.root_size / 4));
+        if constexpr (dr::is_jit_v<Float>)
+            m_scales = dr::load<Float>(scales.data(), scales.size());
+        else
+            m_scales = std::move(scales);
     }
 
     /// The active index box [min, max] (inclusive) becomes the volume's
@@ -676,6 +955,10 @@ private:
     Vector3f m_resolution;        // active box extent in voxels, as Float
     Matrix4f m_index_from_world;  // use_grid_transform: world -> index - min
     Float m_max;                  // max(), the clamp of trilinear results
+    Vector3f m_max3;              // Vec3f: the clamp of each channel
+    ScalarGridScales m_scales;    // spectral Vec3f: each value's scale (see to_spectral_coefficients)
+    UInt32 m_scale_tiles, m_scale_background; // ... where root tiles' and the background's scales start
+    UInt32 m_leaf_begin_word, m_tile_begin_word; // ... the leaf array and the root tiles
     nanovdb_drjit::MajorantGrid<UInt32> m_majorants; // per-node bounds (majorant walk)
     Matrix4f m_cell_from_world;   // world -> the walk's cell space
 
@@ -684,6 +967,9 @@ private:
     ScalarVector3i m_resolution_host;
     ScalarFloat m_max_host = 0.f;      // max(): the largest value lookups in the box return
     ScalarFloat m_grid_max_host = 0.f; // the largest value the grid stores
+    ScalarVector3f m_max3_host;        // Vec3f: max() per channel (max_per_channel)
+    size_t m_scale_bytes = 0;          // spectral Vec3f: the scales beside the grid
+    bool m_raw = false;                // Vec3f: no spectral conversion
     ScalarFloat m_background_host = 0.f;
     uint32_t m_grid_type = 0;     // NanoVDB's GridType (layout.h)
     size_t m_grid_bytes = 0;      // the grid's bytes
@@ -705,7 +991,8 @@ private:
                    m_majorants.table, m_majorants.leaf_begin, m_majorants.lower_begin,
                    m_majorants.upper_begin, m_majorants.tile_begin, m_majorants.lower_slot,
                    m_majorants.upper_slot, m_majorants.tile_slot, m_majorants.background,
-                   m_majorants.clamp, m_majorants.base, m_cell_from_world)
+                   m_majorants.clamp, m_majorants.base, m_cell_from_world, m_max3, m_scales,
+                   m_scale_tiles, m_scale_background, m_leaf_begin_word, m_tile_begin_word)
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)
