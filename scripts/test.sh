@@ -22,6 +22,11 @@ for g in single_voxel lower_tiles upper_tiles empty constant_cube nonzero_backgr
 done
 [ -f build-fuzz/seeds/lower_tiles_blosc.nvdb ] ||
   build/bin/nvdb_make_test_grid lower_tiles build-fuzz/seeds/lower_tiles_blosc.nvdb --codec blosc >/dev/null
+# Every value type: quantized, half (a raw grid buffer) and Vec3f leaves
+for t in fp4 fp8 fp16 fpn half vec3f; do
+  [ -f "build-fuzz/seeds/lower_tiles_${t}.nvdb" ] ||
+    build/bin/nvdb_make_test_grid lower_tiles "build-fuzz/seeds/lower_tiles_${t}.nvdb" --type "$t" >/dev/null
+done
 [ -f build-fuzz/seeds/single_voxel_none.nvdb ] ||
   build/bin/nvdb_make_test_grid single_voxel build-fuzz/seeds/single_voxel_none.nvdb >/dev/null
 shared="${NVDB_SHARED_DATA:-../shared/data}"

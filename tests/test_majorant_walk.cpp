@@ -14,7 +14,7 @@
       - the LLVM walk equals the scalar walk bit for bit, step for step, and
         the faithful readers (PNanoVDB's root search, 64-bit child offsets)
         walk exactly as the plan's fast readers;
-      - the same on Fp8, FpN and Half versions of four grids
+      - the same on Fp8, FpN, Half and Vec3f versions of four grids
         (tests/typed_grids.h), read by PNanoVDB's per-type readers (the
         hand walk, written against NanoVDB's float node structs, is left out
         there).
@@ -119,7 +119,7 @@ const std::vector<WalkGrid> &walk_grids() {
             out.push_back(make_walk_grid(name, nvdb_test::make_nano_grid(name)));
         out.push_back(make_walk_grid("mixed_tiles", mixed_tiles()));
         for (const char *name : { "noisy_cloud", "lower_tiles", "upper_tiles", "nonzero_background" })
-            for (const char *type : { "fp8", "fpn", "half" }) {
+            for (const char *type : { "fp8", "fpn", "half", "vec3f" }) {
                 nvdb_test::TypedGrid t = nvdb_test::make_typed_grid(name, type);
                 out.push_back(make_walk_grid(name, nvdb_test::make_nano_grid(name), &t));
             }
@@ -179,6 +179,7 @@ template <typename Fn> decltype(auto) with_type(uint32_t grid_type, Fn &&fn) {
         case 9: return fn(integral_constant<uint32_t, 9>{});
         case 14: return fn(integral_constant<uint32_t, 14>{});
         case 16: return fn(integral_constant<uint32_t, 16>{});
+        case 6: return fn(integral_constant<uint32_t, 6>{});
         default: return fn(integral_constant<uint32_t, 1>{});
     }
 }
@@ -228,6 +229,10 @@ struct Reference {
             case PNANOVDB_GRID_TYPE_FPN: return pnanovdb_root_fpn_read_float(buf, a, &ijk, level);
             case PNANOVDB_GRID_TYPE_HALF:
                 return nvdb_test::f16c_to_float(uint16_t(pnanovdb_read_half(buf, a)));
+            case PNANOVDB_GRID_TYPE_VEC3F: // the largest channel: what a majorant bounds
+                return std::max(pnanovdb_read_float(buf, a),
+                                std::max(pnanovdb_read_float(buf, pnanovdb_address_offset(a, 4)),
+                                         pnanovdb_read_float(buf, pnanovdb_address_offset(a, 8))));
             default: return pnanovdb_read_float(buf, a);
         }
     }

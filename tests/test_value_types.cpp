@@ -396,3 +396,110 @@ TEST_CASE_TEMPLATE("typed grids: the stencil's 8 values equal 8 traversals", UIn
         }
     }
 }
+
+// ---------------------------------------------------------------------------
+//  Vec3f
+// ---------------------------------------------------------------------------
+
+TEST_CASE_TEMPLATE("Vec3f grids: address, level and 3 floats equal PNanoVDB's reads and "
+                   "NanoVDB's accessor", UInt32, uint32_t, dr::LLVMArray<uint32_t>) {
+    init_backend<UInt32>();
+    constexpr uint32_t T = ndr::layout::GRID_TYPE_VEC3F;
+    uint64_t seed = 500;
+    for (const std::string &name : nvdb_test::grid_names()) {
+        SUBCASE(name.c_str()) {
+            Case c;
+            c.grid = nvdb_test::make_typed_grid(name, "vec3f");
+            c.plan = loader::plan_readers(
+                loader::validate_grid(c.label(), c.grid.words.data(), c.grid.bytes));
+            c.coords = nvdb_test::query_coords(*c.grid.float_grid.grid<float>(), QUERY_COUNT, seed++);
+            const size_t n = c.coords.size();
+            // PNanoVDB: address and level, then three floats
+            pnanovdb_buf_t pbuf;
+            pbuf.data = c.grid.words.data();
+            pnanovdb_grid_handle_t pgrid = { pnanovdb_address_null() };
+            pnanovdb_root_handle_t proot =
+                pnanovdb_tree_get_root(pbuf, pnanovdb_grid_get_tree(pbuf, pgrid));
+            std::vector<uint64_t> ref_address(n);
+            std::vector<uint32_t> ref_level(n), ref_value(3 * n), acc_value(3 * n);
+            auto reference = c.grid.reference3();
+            for (size_t i = 0; i < n; ++i) {
+                pnanovdb_coord_t ijk = { c.coords[i][0], c.coords[i][1], c.coords[i][2] };
+                pnanovdb_uint32_t level = 0;
+                pnanovdb_address_t a = pnanovdb_root_get_value_address_and_level(
+                    PNANOVDB_GRID_TYPE_VEC3F, pbuf, proot, &ijk, &level);
+                ref_address[i] = a.byte_offset;
+                ref_level[i] = level;
+                float acc[3];
+                reference(nanovdb::Coord(ijk.x, ijk.y, ijk.z), acc);
+                for (uint32_t k = 0; k < 3; ++k) {
+                    ref_value[3 * i + k] =
+                        bits_of(pnanovdb_read_float(pbuf, pnanovdb_address_offset(a, 4 * k)));
+                    acc_value[3 * i + k] = bits_of(acc[k]);
+                }
+            }
+            for (bool fast : { false, true }) {
+                std::vector<uint64_t> address(n);
+                std::vector<uint32_t> level(n), value(3 * n);
+                with_reader<UInt32>(c, fast, [&](const auto &buf, const auto &root) {
+                    if constexpr (!dr::is_jit_v<UInt32>) {
+                        for (size_t i = 0; i < n; ++i) {
+                            ndr::Coord<uint32_t> ijk(c.coords[i][0], c.coords[i][1], c.coords[i][2]);
+                            auto al = ndr::root_get_value_address_and_level<T>(buf, root, ijk, true);
+                            auto v = ndr::root_read_vec3f<T>(buf, al.address, true);
+                            address[i] = uint64_t(al.address) * 4;
+                            level[i] = al.level;
+                            for (int k = 0; k < 3; ++k)
+                                value[3 * i + k] = bits_of(v[k]);
+                        }
+                    } else {
+                        using Mask = dr::mask_t<UInt32>;
+                        ndr::Coord<UInt32> ijk = jit_coords<UInt32>(c.coords, n);
+                        Mask active = dr::full<Mask>(true, n);
+                        auto al = ndr::root_get_value_address_and_level<T>(buf, root, ijk, active);
+                        auto v = ndr::root_read_vec3f<T>(buf, al.address, active);
+                        dr::eval(al.address, al.level, v);
+                        std::vector<uint32_t> a(n), ch(n);
+                        dr::store(a.data(), al.address);
+                        dr::store(level.data(), al.level);
+                        for (size_t i = 0; i < n; ++i)
+                            address[i] = uint64_t(a[i]) * 4;
+                        for (int k = 0; k < 3; ++k) {
+                            dr::store(ch.data(), dr::reinterpret_array<UInt32>(v[k]));
+                            for (size_t i = 0; i < n; ++i)
+                                value[3 * i + k] = ch[i];
+                        }
+                    }
+                });
+                size_t mismatches = 0, accessor_mismatches = 0;
+                for (size_t i = 0; i < n; ++i) {
+                    bool same = address[i] == ref_address[i] && level[i] == ref_level[i];
+                    bool same_acc = true;
+                    for (int k = 0; k < 3; ++k) {
+                        same &= value[3 * i + k] == ref_value[3 * i + k];
+                        same_acc &= value[3 * i + k] == acc_value[3 * i + k];
+                    }
+                    if (!same && ++mismatches <= 5) {
+                        INFO(c.label(), ", ijk = (", c.coords[i][0], ", ", c.coords[i][1], ", ",
+                             c.coords[i][2], ")");
+                        CHECK(address[i] == ref_address[i]);
+                        CHECK(level[i] == ref_level[i]);
+                        CHECK(value[3 * i] == ref_value[3 * i]);
+                    }
+                    if (!same_acc && ++accessor_mismatches <= 5) {
+                        INFO(c.label(), " vs NanoVDB's accessor, ijk = (", c.coords[i][0], ", ",
+                             c.coords[i][1], ", ", c.coords[i][2], ")");
+                        CHECK(value[3 * i] == acc_value[3 * i]);
+                    }
+                }
+                MESSAGE(std::string(dr::is_jit_v<UInt32> ? "LLVM " : "scalar "),
+                        std::string(fast ? "fast" : "faithful"), ", ", c.label(), ": ",
+                        n - mismatches, " of ", n, " reads identical to PNanoVDB, ",
+                        n - accessor_mismatches, " to NanoVDB's accessor");
+                CHECK(n >= QUERY_COUNT);
+                CHECK(mismatches == 0);
+                CHECK(accessor_mismatches == 0);
+            }
+        }
+    }
+}

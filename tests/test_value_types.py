@@ -7,6 +7,8 @@ majorant walk. The reads themselves are compared with PNanoVDB in
 tests/test_value_types.cpp.
 """
 
+import re
+
 import numpy as np
 import pytest
 import drjit as dr
@@ -85,3 +87,145 @@ def test05_volpathlocal_walks_typed_grids(variants_rgb, make_grid, value_type):
     vol = load_nvdb(nvdb)
     assert_same_expectation(
         lambda integrator, **kw: sky_and_sun_scene(integrator, {"cube": unit_cube(medium(vol, 4.0))}, **kw))
+
+
+# ---------------------------------------------------------------------------
+#  Vec3f: a 3-channel gridvolume, in every colour mode
+# ---------------------------------------------------------------------------
+
+from conftest import _setup_variant  # noqa: E402
+
+COLOUR_VARIANTS = ["scalar_rgb", "llvm_ad_rgb", "llvm_ad_mono", "llvm_ad_spectral",
+                   "scalar_spectral"]
+
+
+@pytest.fixture(params=COLOUR_VARIANTS)
+def colour_variant(request):
+    _setup_variant(request.param)
+    return request.param
+
+
+def interactions(pts, variant):
+    """Interactions at the points (N, 3); spectral: 4 fixed wavelengths"""
+    if dr.is_jit_v(mi.Float):
+        it = dr.zeros(mi.Interaction3f, len(pts))
+        it.p = mi.Point3f(pts[:, 0], pts[:, 1], pts[:, 2])
+        if "spectral" in variant:
+            it.wavelengths = mi.UnpolarizedSpectrum(450, 520, 600, 680)
+        return [it]
+    out = []
+    for q in pts:
+        it = mi.Interaction3f()
+        it.p = mi.ScalarPoint3f(*map(float, q))
+        if "spectral" in variant:
+            it.wavelengths = mi.UnpolarizedSpectrum(450, 520, 600, 680)
+        out.append(it)
+    return out
+
+
+def evaluate(volume, its, method="eval"):
+    return np.array([np.array(getattr(volume, method)(it)) for it in its]).reshape(-1)
+
+
+@pytest.mark.parametrize("filter_type", ["nearest", "trilinear"])
+@pytest.mark.parametrize("name", ["noisy_cloud", "upper_tiles", "nonzero_background"])
+def test06_vec3f_equals_a_3_channel_gridvolume(colour_variant, make_grid, name, filter_type):
+    # eval(): the colour (RGB), its luminance (mono), the sRGB-model spectrum
+    # times 2 max(rgb) (spectral), as gridvolume computes each; max() and
+    # max_per_channel() as gridvolume's on the dense export
+    nvdb, vol = make_grid(name, value_type="vec3f")
+    nano = load_nvdb(nvdb, filter_type=filter_type)
+    dense = load_dense(vol, filter_type=filter_type)
+    assert "grid_type = Vec3f," in str(nano)
+    assert nano.max() == dense.max()
+    n = 20_000 if dr.is_jit_v(mi.Float) else 400
+    pts = random_points(n, 7, 0.02, 0.98)
+    its = interactions(pts, colour_variant)
+    a, b = evaluate(nano, its), evaluate(dense, its)
+    if filter_type == "nearest":
+        assert np.array_equal(a, b), f"{np.sum(a != b)} of {len(a)} values differ"
+    else:
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+    if "spectral" not in colour_variant:
+        a1, b1 = evaluate(nano, its, "eval_1"), evaluate(dense, its, "eval_1")
+        np.testing.assert_allclose(a1, b1, rtol=1e-5, atol=1e-6)
+        a3, b3 = evaluate(nano, its, "eval_3"), evaluate(dense, its, "eval_3")
+        np.testing.assert_allclose(a3, b3, rtol=1e-5, atol=1e-6)
+
+
+def test07_vec3f_raw_and_channel_errors(make_grid):
+    nvdb, vol = make_grid("noisy_cloud", value_type="vec3f")
+    _setup_variant("scalar_spectral")
+    it = mi.Interaction3f()
+    it.p = mi.ScalarPoint3f(0.5, 0.5, 0.5)
+    it.wavelengths = mi.UnpolarizedSpectrum(450, 520, 600, 680)
+    # Spectral, raw=false: a spectrum only (eval_1 / eval_3 refuse, as gridvolume)
+    nano = load_nvdb(nvdb)
+    for method in ["eval_1", "eval_3"]:
+        with pytest.raises(RuntimeError, match=r"(?s)noisy_cloud.*raw=false"):
+            getattr(nano, method)(it)
+    # raw=true: the vector (as gridvolume), no spectrum
+    raw, dense_raw = load_nvdb(nvdb, raw=True), load_dense(vol, raw=True)
+    assert np.array_equal(np.array(raw.eval_3(it)), np.array(dense_raw.eval_3(it)))
+    assert raw.max() == dense_raw.max()
+    with pytest.raises(RuntimeError, match=r"(?s)noisy_cloud.*raw=true"):
+        raw.eval(it)
+    # A scalar grid has no 3-vector
+    _setup_variant("scalar_rgb")
+    scalar, _ = make_grid("noisy_cloud", dense=False)
+    it = mi.Interaction3f()
+    it.p = mi.ScalarPoint3f(0.5, 0.5, 0.5)
+    with pytest.raises(RuntimeError, match="single channel"):
+        load_nvdb(scalar).eval_3(it)
+
+
+def test08_vec3f_memory(variant_llvm_ad_rgb, make_grid):
+    # The backend holds the grid once (its bytes padded to 64); spectral
+    # variants add one float per leaf voxel (the scales) and keep no colours
+    nvdb, _ = make_grid("noisy_cloud", value_type="vec3f", dense=False)
+    s = str(load_nvdb(nvdb))
+    grid_bytes = int(re.search(r"\n  bytes = (\d+)", s).group(1))
+    backend = int(re.search(r"backend_bytes = (\d+)", s).group(1))
+    assert backend == (grid_bytes + 63) // 64 * 64
+    assert "spectral_scale_bytes" not in s
+    _setup_variant("llvm_ad_spectral")
+    s = str(load_nvdb(nvdb))
+    assert int(re.search(r"backend_bytes = (\d+)", s).group(1)) == backend
+    scale_bytes = int(re.search(r"spectral_scale_bytes = (\d+)", s).group(1))
+    # 2048 bytes per 6272-byte leaf (+ 4 per root tile): at most a third
+    assert 0 < scale_bytes <= grid_bytes / 3, (scale_bytes, grid_bytes)
+
+
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_spectral"])
+@pytest.mark.parametrize("filter_type", ["nearest", "trilinear"])
+def test09_albedo_from_vec3f_beside_a_scalar_density(make_grid, variant, filter_type):
+    # The typical use: sigma_t from a float grid, albedo from a Vec3f grid
+    # (the fog sphere's colours: every channel in [0, 1]); the image equals
+    # the one with two gridvolumes
+    _setup_variant(variant)
+    density, density_vol = make_grid("noisy_cloud")
+    albedo, albedo_vol = make_grid("fog_sphere", value_type="vec3f")
+
+    def scene(sigma_t, colour):
+        return mi.load_dict({
+            "type": "scene",
+            "integrator": {"type": "volpath", "max_depth": 16},
+            "sensor": {"type": "perspective", "fov": 35,
+                       "to_world": mi.ScalarTransform4f().look_at(
+                           origin=[2.2, 1.6, 2.6], target=[0.5, 0.5, 0.5], up=[0, 1, 0]),
+                       "film": {"type": "hdrfilm", "width": 24, "height": 24,
+                                "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+                       "sampler": {"type": "independent", "sample_count": 4}},
+            "emitter": {"type": "constant"},
+            "cube": {"type": "cube",
+                     "to_world": mi.ScalarTransform4f().translate([0.5, 0.5, 0.5]).scale(0.5),
+                     "bsdf": {"type": "null"},
+                     "interior": {"type": "heterogeneous", "sigma_t": sigma_t,
+                                  "albedo": colour, "scale": 6.0}},
+        })
+    a = np.array(mi.render(scene(load_nvdb(density, filter_type=filter_type),
+                                 load_nvdb(albedo, filter_type=filter_type)), seed=0))
+    b = np.array(mi.render(scene(load_dense(density_vol, filter_type=filter_type),
+                                 load_dense(albedo_vol, filter_type=filter_type)), seed=0))
+    assert np.mean(a) > 0.01
+    assert_renders_match(a, b, filter_type)

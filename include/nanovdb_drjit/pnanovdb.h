@@ -54,7 +54,7 @@
     Half (pnanovdb_read_half, converted to float here: PNanoVDB's C path
     returns the raw bits), Fp4/Fp8/Fp16/FpN (pnanovdb_root_fp*_read_float: a
     float at tiles, code * quantum + minimum in leaves) and Vec3f
-    (pnanovdb_read_vec3f). Half values are 2-byte aligned in leaves: their word
+    (three pnanovdb_read_float). Half values are 2-byte aligned in leaves: their word
     address drops the half-word, which the reader takes from the voxel's index
     n, as PNanoVDB's read_half takes it from the byte address.
 */
@@ -154,7 +154,8 @@ read_float(const Buffer &buf, const UInt32 &address,
         read_uint32(buf, address, active));
 }
 
-/// PNanoVDB: pnanovdb_read_vec3f (three consecutive floats)
+/// A Vec3f value: three consecutive floats (PNanoVDB 32.4 reads them with
+/// pnanovdb_read_float at address, + 4 and + 8)
 template <typename UInt32, typename Buffer>
 DRJIT_INLINE dr::Array<dr::float32_array_t<UInt32>, 3>
 read_vec3f(const Buffer &buf, const UInt32 &address, const dr::mask_t<UInt32> &active) {

@@ -11,6 +11,8 @@
 //      and with PNanoVDB's own algorithm: root_get_value and
 //      root_get_stencil_addresses at coordinates derived from the input
 //      (bbox corners, node boundaries, raw int32s).
+// Every value type the loader accepts (float, Half, Fp4/8/16, FpN, Vec3f) is
+// looked up with its own readers and compared with PNanoVDB's per-type ones.
 // Oracles, besides ASan/UBSan:
 //  * the decoded grid sits in a GuardedBuffer (tests/guarded_buffer.h): any
 //    read past it faults, however far;
@@ -30,6 +32,7 @@
 #include <nanovdb_drjit/pnanovdb.h>
 #include <nanovdb_drjit/stencil.h>
 #include <nanovdb_loader/load.h>
+#include "../../src/loader/value_codec.h"
 
 #include "../guarded_buffer.h"
 
@@ -86,8 +89,64 @@ struct Reader { // bytes of the input, consumed from the end, for coordinates
     }
 };
 
+/// PNanoVDB's value (its per-type reader) at an address and level, as the
+/// bits of up to 3 floats (the translation's value: root_read_float /
+/// root_read_vec3f)
+template <uint32_t T>
+std::array<uint32_t, 3> pnanovdb_value(pnanovdb_buf_t pbuf, pnanovdb_address_t a,
+                                       pnanovdb_coord_t *ijk, uint32_t level) {
+    float v[3] = { 0.f, 0.f, 0.f };
+    switch (T) {
+        case PNANOVDB_GRID_TYPE_FP4: v[0] = pnanovdb_root_fp4_read_float(pbuf, a, ijk, level); break;
+        case PNANOVDB_GRID_TYPE_FP8: v[0] = pnanovdb_root_fp8_read_float(pbuf, a, ijk, level); break;
+        case PNANOVDB_GRID_TYPE_FP16: v[0] = pnanovdb_root_fp16_read_float(pbuf, a, ijk, level); break;
+        case PNANOVDB_GRID_TYPE_FPN: v[0] = pnanovdb_root_fpn_read_float(pbuf, a, ijk, level); break;
+        case PNANOVDB_GRID_TYPE_HALF: // F16C-exact (tests/test_value_types.cpp)
+            v[0] = nio::detail::half_to_float(uint16_t(pnanovdb_read_half(pbuf, a))); break;
+        case PNANOVDB_GRID_TYPE_VEC3F:
+            for (uint32_t k = 0; k < 3; ++k)
+                v[k] = pnanovdb_read_float(pbuf, pnanovdb_address_offset(a, 4 * k));
+            break;
+        default: v[0] = pnanovdb_read_float(pbuf, a);
+    }
+    std::array<uint32_t, 3> bits;
+    std::memcpy(bits.data(), v, 12);
+    return bits;
+}
+
+/// The translation's value at an address and level, as pnanovdb_value()
+template <uint32_t T, typename Buffer>
+std::array<uint32_t, 3> translation_value(const Buffer &buf, uint32_t address, uint32_t level,
+                                          const ndr::Coord<uint32_t> &ijk) {
+    float v[3] = { 0.f, 0.f, 0.f };
+    if constexpr (T == ndr::layout::GRID_TYPE_VEC3F) {
+        auto x = ndr::root_read_vec3f<T>(buf, address, true);
+        for (int k = 0; k < 3; ++k) v[k] = x[k];
+    } else {
+        v[0] = ndr::root_read_float<T>(buf, address, level, ijk, true);
+    }
+    std::array<uint32_t, 3> bits;
+    std::memcpy(bits.data(), v, 12);
+    return bits;
+}
+
+/// Calls fn(std::integral_constant<uint32_t, T>) for the grid's value type
+template <typename Fn> void with_type(uint32_t grid_type, Fn &&fn) {
+    namespace L = ndr::layout;
+    using std::integral_constant;
+    switch (grid_type) {
+        case L::GRID_TYPE_HALF: return fn(integral_constant<uint32_t, L::GRID_TYPE_HALF>{});
+        case L::GRID_TYPE_FP4: return fn(integral_constant<uint32_t, L::GRID_TYPE_FP4>{});
+        case L::GRID_TYPE_FP8: return fn(integral_constant<uint32_t, L::GRID_TYPE_FP8>{});
+        case L::GRID_TYPE_FP16: return fn(integral_constant<uint32_t, L::GRID_TYPE_FP16>{});
+        case L::GRID_TYPE_FPN: return fn(integral_constant<uint32_t, L::GRID_TYPE_FPN>{});
+        case L::GRID_TYPE_VEC3F: return fn(integral_constant<uint32_t, L::GRID_TYPE_VEC3F>{});
+        default: return fn(integral_constant<uint32_t, L::GRID_TYPE_FLOAT>{});
+    }
+}
+
 /// Lookups through one reader (the plan's or the faithful one) against PNanoVDB
-template <typename Root, typename Buffer>
+template <uint32_t T, typename Root, typename Buffer>
 void lookups(const Buffer &buf, const Root &root, const nio::ValidatedGrid &grid,
              const uint8_t *input, size_t input_size) {
     const uint32_t *words = grid.words();
@@ -122,32 +181,32 @@ void lookups(const Buffer &buf, const Root &root, const nio::ValidatedGrid &grid
     for (const auto &c : coords) {
         // One traversal: translation vs PNanoVDB
         ndr::Coord<uint32_t> ijk(c[0], c[1], c[2]);
-        ndr::AddressAndLevel<uint32_t> al = ndr::root_get_value_address_and_level(
+        ndr::AddressAndLevel<uint32_t> al = ndr::root_get_value_address_and_level<T>(
             buf, root, ijk, true);
         pnanovdb_coord_t pijk = { c[0], c[1], c[2] };
         pnanovdb_uint32_t plevel = 0;
         pnanovdb_address_t paddr = pnanovdb_root_get_value_address_and_level(
-            PNANOVDB_GRID_TYPE_FLOAT, pbuf, proot, &pijk, &plevel);
+            T, pbuf, proot, &pijk, &plevel);
         if (al.address >= word_count) die("value address outside the buffer", al.address, word_count);
-        if (uint64_t(al.address) * 4 != paddr.byte_offset || al.level != plevel)
+        // Half leaf values are 2-byte aligned: the translation addresses their word
+        if (uint64_t(al.address) * 4 != (paddr.byte_offset & ~uint64_t(3)) || al.level != plevel)
             die("translation and PNanoVDB disagree", uint64_t(al.address) * 4, paddr.byte_offset);
-        const float v = ndr::root_get_value(buf, root, ijk, true);
-        float pv = pnanovdb_read_float(pbuf, paddr);
-        if (std::memcmp(&v, &pv, 4) != 0) die("values differ");
+        if (translation_value<T>(buf, al.address, al.level, ijk) !=
+            pnanovdb_value<T>(pbuf, paddr, &pijk, plevel))
+            die("values differ");
 
         // A trilinear stencil with c as its first corner (+1 wraps at
         // INT32_MAX in both readers: int32 wrap-around, done in uint32 here)
         std::array<int32_t, 3> c0 = c;
         ndr::Coord<uint32_t> ijk0(c0[0], c0[1], c0[2]);
-        dr::Array<uint32_t, 8> st = ndr::root_get_stencil_addresses(buf, root, ijk0, true);
+        dr::Array<uint32_t, 8> st = ndr::root_get_stencil_addresses<T>(buf, root, ijk0, true);
         for (uint32_t corner = 0; corner < 8; ++corner) {
             auto plus = [](int32_t v, uint32_t b) { return int32_t(uint32_t(v) + b); };
             pnanovdb_coord_t q = { plus(c0[0], corner & 1), plus(c0[1], (corner >> 1) & 1),
                                    plus(c0[2], (corner >> 2) & 1) };
-            pnanovdb_address_t a = pnanovdb_root_get_value_address(PNANOVDB_GRID_TYPE_FLOAT, pbuf,
-                                                                   proot, &q);
+            pnanovdb_address_t a = pnanovdb_root_get_value_address(T, pbuf, proot, &q);
             if (st[corner] >= word_count) die("stencil address outside the buffer", st[corner]);
-            if (uint64_t(st[corner]) * 4 != a.byte_offset)
+            if (uint64_t(st[corner]) * 4 != (a.byte_offset & ~uint64_t(3)))
                 die("stencil corner differs from PNanoVDB", corner, a.byte_offset);
         }
     }
@@ -200,8 +259,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
 
         const uint32_t *words = decoded->grid.words();
         for (const nio::ReaderPlan &plan : { decoded->plan, decoded->plan.faithful() }) {
-            ndr::Reader<uint32_t>::from_plan(plan).apply(words, [&](const auto &b, const auto &root) {
-                lookups(b, root, decoded->grid, data, size);
+            with_type(decoded->grid.summary().grid_type, [&](auto type) {
+                ndr::Reader<uint32_t>::from_plan(plan).apply(words, [&](const auto &b, const auto &root) {
+                    lookups<decltype(type)::value>(b, root, decoded->grid, data, size);
+                });
             });
         }
     } catch (const nio::Error &) {

@@ -5,6 +5,9 @@
 #include <doctest/doctest.h>
 
 #include "fixtures.h"
+#include <typed_grids.h>
+
+#include <nanovdb_loader/values.h>
 
 TEST_CASE("validate_grid on NanoVDB-made float grids") {
     // Built once for all subcases (doctest re-runs this body for each)
@@ -316,3 +319,140 @@ TEST_CASE("validate_grid: node arrays must not overlap; children at the right le
 // returned address is also checked against the buffer size.
 // =====================================================================================
 
+
+/// The byte offset of a grid's leaf array (the tree's leaf offset + 672)
+static uint64_t layout_leaf_begin(const Bytes &b) { return 672 + peek<uint64_t>(b, 672); }
+
+// =====================================================================================
+TEST_CASE("typed grids: validation, statistics and hostile quantized leaves") {
+    const std::string p = "typed.nvdb";
+    auto words_of = [](const nvdb_test::TypedGrid &g) {
+        Bytes b(g.bytes);
+        std::memcpy(b.data(), g.words.data(), g.bytes);
+        return b;
+    };
+    SUBCASE("every type validates; its statistics are those of its decoded values") {
+        for (const std::string type : { "fp4", "fp8", "fp16", "fpn", "half", "vec3f" }) {
+            INFO("type " << type);
+            const nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", type);
+            Bytes b = words_of(g);
+            const auto info = nio::validate_grid(p, b.data(), b.size());
+            CHECK(info.summary().grid_type == g.grid_type);
+            CHECK(info.summary().node_count[0] == g.float_grid.grid<float>()->tree().nodeCount(0));
+            CHECK(info.summary().node_end[0] == g.bytes); // leaves last, to the grid's end
+            // max over every value (leaves decoded) = the accessor's largest value
+            float expect = -1e30f;
+            const auto *fg = g.float_grid.grid<float>();
+            auto acc = fg->getAccessor();
+            const auto *leaf = fg->tree().getFirstLeaf();
+            if (type == "vec3f") {
+                auto ref = g.reference3();
+                for (uint32_t n = 0; n < fg->tree().nodeCount(0); ++n)
+                    for (uint32_t v = 0; v < 512; ++v) {
+                        float c[3];
+                        ref(leaf[n].offsetToGlobalCoord(v), c);
+                        expect = std::max(expect, std::max(c[0], std::max(c[1], c[2])));
+                    }
+            } else {
+                auto ref = g.reference();
+                for (uint32_t n = 0; n < fg->tree().nodeCount(0); ++n)
+                    for (uint32_t v = 0; v < 512; ++v)
+                        expect = std::max(expect, ref(leaf[n].offsetToGlobalCoord(v)));
+            }
+            (void) acc;
+            CHECK(info.values().max == expect);
+            CHECK(info.values().value_count > 0);
+        }
+    }
+    SUBCASE("FpN: a code width beyond 16 bits") {
+        const nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", "fpn");
+        Bytes b = words_of(g);
+        const uint64_t leaf = layout_leaf_begin(b);
+        // flags >> 5 = 5: 32-bit codes, which FpN does not have
+        b[leaf + 15] = uint8_t((b[leaf + 15] & 0x1f) | (5 << 5));
+        CHECK_IO_ERROR(nio::validate_grid(p, b.data(), b.size()), p, "FpN leaf 0",
+                       "code width of 32 bits", "1, 2, 4, 8 or 16 bits");
+    }
+    SUBCASE("FpN: leaves that run past the grid's end") {
+        const nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", "fpn");
+        Bytes b = words_of(g);
+        const uint64_t leaf = layout_leaf_begin(b);
+        const uint32_t count = peek<uint32_t>(b, 672 + 32);
+        // Widen the last leaf to 16 bits: it no longer fits the grid
+        uint64_t at = leaf;
+        for (uint32_t n = 0; n + 1 < count; ++n)
+            at += 96 + (64u << (b[at + 15] >> 5));
+        REQUIRE((b[at + 15] >> 5) < 4);
+        b[at + 15] = uint8_t((b[at + 15] & 0x1f) | (4 << 5));
+        CHECK_IO_ERROR(nio::validate_grid(p, b.data(), b.size()), p,
+                       "FpN leaf " + std::to_string(count - 1), "extends past the end");
+    }
+    SUBCASE("quantized grids truncated: mGridSize beyond the buffer") {
+        for (const std::string type : { "fp4", "fpn", "half", "vec3f" }) {
+            const nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", type);
+            Bytes b = words_of(g);
+            b.resize(b.size() - 100);
+            CHECK_IO_ERROR(nio::validate_grid(p, b.data(), b.size()), p, "mGridSize");
+        }
+    }
+    SUBCASE("Fp8: a child offset into the middle of a leaf") {
+        const nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", "fp8");
+        Bytes b = words_of(g);
+        // the first lower node's first child entry
+        const uint64_t lower = 672 + peek<uint64_t>(b, 672 + 8);
+        uint32_t e = 0;
+        while (!((peek<uint32_t>(b, lower + 544 + 4 * (e >> 5)) >> (e & 31)) & 1u)) ++e;
+        const uint64_t at = lower + 1088 + 8 * uint64_t(e);
+        poke<int64_t>(b, at, peek<int64_t>(b, at) + 32);
+        CHECK_IO_ERROR(nio::validate_grid(p, b.data(), b.size()), p, "misaligned");
+    }
+}
+
+TEST_CASE("typed grids: invalid values are found and repaired in their own encoding") {
+    const std::string p = "typed_values.nvdb";
+    SUBCASE("half: NaN and Inf halves, located at their voxel") {
+        nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", "half");
+        uint8_t *buf = reinterpret_cast<uint8_t *>(g.words.data());
+        const uint64_t leaf = 672 + peek<uint64_t>(Bytes(buf, buf + 736), 672);
+        std::memcpy(buf + leaf + 96 + 2 * 5, "\x00\x7e", 2);  // NaN at n = 5
+        std::memcpy(buf + leaf + 96 + 2 * 9, "\x00\x7c", 2);  // +Inf at n = 9
+        auto info = nio::validate_grid(p, static_cast<void *>(buf), g.bytes);
+        CHECK(info.values().nan_count == 1);
+        CHECK(info.values().posinf_count == 1);
+        const nio::ValueScan scan = nio::scan_values(info);
+        const auto o = g.float_grid.grid<float>()->tree().getFirstLeaf()->offsetToGlobalCoord(5);
+        CHECK(scan.first_nan.level == 0);
+        CHECK(scan.first_nan.ijk[0] == o[0]);
+        CHECK(scan.first_nan.ijk[1] == o[1]);
+        CHECK(scan.first_nan.ijk[2] == o[2]);
+        const nio::SanitizeResult r = nio::sanitize_values(info);
+        CHECK(r.nan == 1);
+        CHECK(r.posinf == 1);
+        CHECK(info.values().all_finite());
+        // Written back as halves: a fresh validation agrees
+        const auto again = nio::validate_grid(p, static_cast<const void *>(buf), g.bytes);
+        CHECK(again.values().all_finite());
+        CHECK(again.values().max == info.values().max);
+    }
+    SUBCASE("fp8: a NaN quantum and a negative minimum, re-encoded") {
+        nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", "fp8");
+        uint8_t *buf = reinterpret_cast<uint8_t *>(g.words.data());
+        const uint64_t leaf0 = 672 + peek<uint64_t>(Bytes(buf, buf + 736), 672);
+        const float nan = std::numeric_limits<float>::quiet_NaN(), neg = -0.5f;
+        std::memcpy(buf + leaf0 + 96 - 12, &nan, 4);            // leaf 0: quantum NaN
+        std::memcpy(buf + leaf0 + 608 + 96 - 16, &neg, 4);      // leaf 1: minimum -0.5
+        auto info = nio::validate_grid(p, static_cast<void *>(buf), g.bytes);
+        CHECK(info.values().nan_count > 0);
+        CHECK(info.values().negative_count > 0);
+        const nio::SanitizeResult r = nio::sanitize_values(info);
+        CHECK(r.nan > 0);
+        CHECK(r.negative > 0);
+        CHECK(info.values().all_finite());
+        CHECK(info.values().negative_count == 0);
+        CHECK(info.values().min >= 0.f);
+        const auto again = nio::validate_grid(p, static_cast<const void *>(buf), g.bytes);
+        CHECK(again.values().all_finite());
+        CHECK(again.values().negative_count == 0);
+        CHECK(again.values().max == info.values().max);
+    }
+}
