@@ -255,12 +255,13 @@ def assert_renders_match(a, b, filter_type):
 
 
 def read_vol(path):
-    """Reads a Mitsuba .vol (version 3, float32, 1 channel): (res, bbox, list)."""
+    """Reads a Mitsuba .vol (version 3, float32, 1 or 3 channels): (res, bbox,
+    list of every channel's values, interleaved)."""
     data = Path(path).read_bytes()
     assert data[:3] == b"VOL" and data[3] == 3
     enc, xres, yres, zres, ch = struct.unpack_from("<5i", data, 4)
-    assert enc == 1 and ch == 1
+    assert enc == 1 and ch in (1, 3)
     bbox = struct.unpack_from("<6f", data, 24)
-    n = xres * yres * zres
+    n = xres * yres * zres * ch
     values = struct.unpack_from(f"<{n}f", data, 48)
     return (xres, yres, zres), bbox, values

@@ -449,11 +449,16 @@ def test23_node_offset_outside_buffer(variant_scalar_rgb, make_grid, tmp_path):
 def test24_unsupported_grid_type(variant_scalar_rgb):
     data = need_shared_data("warp_int32_zip_32.3.3.nvdb", "warp_vec3f_zip_32.3.3.nvdb")
     path = data / "warp_int32_zip_32.3.3.nvdb"
-    with pytest.raises(RuntimeError, match=r"(?s)warp_int32_zip_32\.3\.3\.nvdb.*int32"):
+    with pytest.raises(RuntimeError, match=r"(?s)warp_int32_zip_32\.3\.3\.nvdb.*"
+                                           r"supported types: float, Half, Fp4, Fp8, Fp16, FpN, "
+                                           r"Vec3f.*int32"):
         load_nvdb(str(path))
-    path = data / "warp_vec3f_zip_32.3.3.nvdb"
-    with pytest.raises(RuntimeError, match=r"(?s)warp_vec3f_zip_32\.3\.3\.nvdb.*Vec3f"):
-        load_nvdb(str(path))
+    # Warp's Vec3f grid is a supported type: a 3-channel volume
+    vol = load_nvdb(str(data / "warp_vec3f_zip_32.3.3.nvdb"))
+    assert "grid_type = Vec3f," in str(vol)
+    it = mi.Interaction3f()
+    it.p = mi.ScalarPoint3f(0.5, 0.5, 0.5)
+    assert np.all(np.isfinite(np.array(vol.eval_3(it))))
 
 
 def test25_grid_not_found_lists_grids(variant_scalar_rgb):
@@ -502,10 +507,16 @@ def test28_shared_data_files(variants_rgb, path):
             assert np.all(np.isfinite(v))
         except RuntimeError as e:
             assert name in str(e)
+    elif name.startswith("warp_vec3f"):
+        # A Vec3f grid: eval_1 (the luminance) finite and within max()
+        vol = load_nvdb(str(path))
+        v = eval_points(vol, random_points(2000, 31, 0, 1))
+        assert "grid_type = Vec3f," in str(vol)
+        assert np.all(np.isfinite(v)) and np.all(v <= vol.max() * (1 + 1e-6))
     else:
-        # int32, Vec3f, OnIndex grids: a clear "unsupported type" error
+        # int32, OnIndex grids: a clear "unsupported type" error
         with pytest.raises(RuntimeError, match=r"(?s)" + name.replace(".", r"\.") +
-                           r".*(int32|Vec3f|OnIndex|float)"):
+                           r".*(int32|OnIndex|float)"):
             load_nvdb(str(path))
 
 

@@ -153,18 +153,40 @@ def plugin_grid_names(nvdb):
     mi.file_resolver().prepend(str(BUILD))
     with pytest.raises(RuntimeError) as e:
         load_nvdb(str(nvdb), grid="999")
-    return re.findall(r'\d+: "([^"]*)" \(float\)', str(e.value))
+    return re.findall(r'\d+: "([^"]*)" \((?:float|Vec3f)\)', str(e.value))
 
 
-def test03_every_float_grid_in_file_order(gen, tmp_path):
+def test03_every_float_and_vec3s_grid_in_file_order(gen, tmp_path):
     out = tmp_path / "multi.nvdb"
     p = run(gen("multi"), out)
     # one notice per skipped grid, naming it and its type
     notes = [l for l in p.stderr.splitlines() if "skipping" in l]
-    assert len(notes) == 2
-    assert '"vel" (vec3s' in notes[0] and '"flags" (int32' in notes[1]
-    assert plugin_grid_names(out) == ["density", "ls_sphere", "temperature"]
-    assert p.stdout.count("verified") == 3 and "identical" in p.stdout
+    assert len(notes) == 1
+    assert '"flags" (int32' in notes[0] and "only float and vec3s" in notes[0]
+    assert plugin_grid_names(out) == ["density", "vel", "ls_sphere", "temperature"]
+    assert p.stdout.count("verified") == 4 and p.stdout.count("identical") == 4
+    assert 'converted "vel": 1,000 active voxels, Vec3f' in p.stdout
+
+
+def test03b_vec3s_becomes_a_vec3f_grid_that_renders(gen, tmp_path):
+    # vel (vec3s, 10^3 voxels) -> Vec3f: nanovdbvolume's 3-vector equals
+    # gridvolume's on the converter's 3-channel dense export, and a --quantize
+    # choice leaves it unquantized (with a note)
+    out = tmp_path / "v.nvdb"
+    p = run(gen("multi"), out, "--grid", "vel", "--dense", tmp_path / "v.vol",
+            "--quantize", "fp8")
+    assert '"vel" (vec3s) is written as Vec3f' in p.stderr
+    mi.set_variant("llvm_ad_rgb")
+    mi.file_resolver().prepend(str(BUILD))
+    nano = load_nvdb(str(out), filter_type="nearest")
+    dense = load_dense(str(tmp_path / "v.vol"), filter_type="nearest")
+    assert "grid_type = Vec3f," in str(nano)
+    assert nano.max() == dense.max()
+    pts = random_points(5000, 41, 0.0, 0.999999)
+    it = dr.zeros(mi.Interaction3f, len(pts))
+    it.p = mi.Point3f(pts[:, 0], pts[:, 1], pts[:, 2])
+    a, b = np.array(nano.eval_3(it)), np.array(dense.eval_3(it))
+    assert np.array_equal(a, b) and np.abs(a).max() > 0
 
 
 def test04_grid_selection_keeps_file_order(gen, tmp_path):
@@ -256,7 +278,10 @@ def test07_keep_level_sets(tmp_path):
 def test08_dense_one_file_per_grid(gen, tmp_path):
     run(gen("multi"), tmp_path / "m.nvdb", "--dense", tmp_path / "m.vol")
     names = sorted(p.name for p in tmp_path.iterdir())
-    assert names == ["m.nvdb", "m_density.vol", "m_ls_sphere.vol", "m_temperature.vol"]
+    assert names == ["m.nvdb", "m_density.vol", "m_ls_sphere.vol", "m_temperature.vol",
+                     "m_vel.vol"]
+    res, _, values = read_vol(tmp_path / "m_vel.vol")   # 3 channels
+    assert res == (10, 10, 10) and len(values) == 3 * 1000
     res, _, values = read_vol(tmp_path / "m_temperature.vol")
     assert res == (32, 32, 16)
     assert 300.0 <= min(values) and max(values) <= 400.0
@@ -463,16 +488,15 @@ def test21_unknown_grid_lists_the_grids(gen, tmp_path):
     assert 'no grid named "smoke"' in p.stderr
     for name in ["density", "vel", "ls_sphere", "flags", "temperature"]:
         assert f'"{name}"' in p.stderr
-    p = run(gen("multi"), tmp_path / "o.nvdb", "--grid", "vel", rc=1)
-    assert '"vel" (vec3s' in p.stderr and "only scalar float" in p.stderr
+    p = run(gen("multi"), tmp_path / "o.nvdb", "--grid", "flags", rc=1)
+    assert '"flags" (int32' in p.stderr and "only float and vec3s" in p.stderr
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("name,kind", [("openvdb_sphere_points.vdb", "ptdataidx32"),
-                                       ("houdini_velocity_vec3s.vdb", "vec3s")])
+@pytest.mark.parametrize("name,kind", [("openvdb_sphere_points.vdb", "ptdataidx32")])
 def test22_no_convertible_grid(tmp_path, name, kind):
     p = run(need_shared_data(name) / name, tmp_path / "o.nvdb", rc=1)
-    assert "no scalar float grid" in p.stderr and kind in p.stderr and name in p.stderr
+    assert "no float or vec3s grid" in p.stderr and kind in p.stderr and name in p.stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -503,12 +527,12 @@ def test24_dense_too_large_is_refused(gen, tmp_path):
 
 # file -> grids written (None: rejected with a clear message)
 EXPECTED = {
-    "houdini_velocity_vec3s.vdb": None,
+    "houdini_velocity_vec3s.vdb": ["vel"],
     "openvdb_sphere_points.vdb": None,
     "openvdb_icosahedron_ls.vdb": ["ls_icosahedron"],
     "openvdb_smoke1_fog.vdb": ["density"],
     "openvdb_sphere_ls.vdb": ["ls_sphere"],
-    "usd_blender_smoke_empty.vdb": ["density", "shadow"],
+    "usd_blender_smoke_empty.vdb": ["density", "shadow", "velocity"],
     "usd_density_heat_fog.vdb": ["density", "heat"],
     "zeno_unnamed_ls.vdb": [""],
 }
@@ -522,7 +546,7 @@ def test25_shared_data_files(path, tmp_path):
     out = tmp_path / "o.nvdb"
     p = run(path, out, "--dense", tmp_path / "o.vol", "--stats", rc=None)
     if want is None:
-        assert p.returncode == 1 and "no scalar float grid" in p.stderr
+        assert p.returncode == 1 and "no float or vec3s grid" in p.stderr
         assert list(tmp_path.iterdir()) == []
         return
     assert p.returncode == 0, p.stderr

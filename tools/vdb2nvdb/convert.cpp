@@ -304,8 +304,14 @@ int list_file(const std::string &in) {
 namespace {
 
 struct Prepared {
-    FloatGrid::Ptr grid;        ///< after the fog conversion, if any
+    FloatGrid::Ptr grid;        ///< after the fog conversion, if any (null: a vec3s grid)
+    openvdb::Vec3SGrid::Ptr vec; ///< a vec3s grid: written as Vec3f, never quantized
     std::string name;
+
+    const openvdb::GridBase &base() const {
+        return vec ? static_cast<const openvdb::GridBase &>(*vec)
+                   : static_cast<const openvdb::GridBase &>(*grid);
+    }
     openvdb::GridClass source_class;
     bool fogged = false;
 };
@@ -320,9 +326,9 @@ std::vector<Prepared> select_and_prepare(openvdb::GridPtrVec &all, const std::st
                 if (all[i]->getName() != name)
                     continue;
                 found = true;
-                if (!all[i]->isType<FloatGrid>())
+                if (!all[i]->isType<FloatGrid>() && !all[i]->isType<openvdb::Vec3SGrid>())
                     throw Error(label + ": grid " + grid_summary(*all[i]) +
-                                " cannot be converted: only scalar float grids are supported");
+                                " cannot be converted: only float and vec3s grids are supported");
                 chosen[i] = true;
             }
             if (!found)
@@ -331,11 +337,11 @@ std::vector<Prepared> select_and_prepare(openvdb::GridPtrVec &all, const std::st
         }
     } else {
         for (size_t i = 0; i < all.size(); ++i) {
-            if (all[i]->isType<FloatGrid>())
+            if (all[i]->isType<FloatGrid>() || all[i]->isType<openvdb::Vec3SGrid>())
                 chosen[i] = true;
             else
                 note("skipping grid " + grid_summary(*all[i]) +
-                     ": only scalar float grids are converted");
+                     ": only float and vec3s grids are converted");
         }
     }
     std::vector<Prepared> out;
@@ -344,13 +350,14 @@ std::vector<Prepared> select_and_prepare(openvdb::GridPtrVec &all, const std::st
             continue;
         Prepared p;
         p.grid = openvdb::gridPtrCast<FloatGrid>(all[i]);
-        p.name = p.grid->getName();
-        p.source_class = p.grid->getGridClass();
-        if (!p.grid->transform().baseMap()->isLinear())
-            throw Error(label + ": grid " + grid_summary(*p.grid) + " has a non-affine (" +
-                        p.grid->transform().mapType() +
+        p.vec = openvdb::gridPtrCast<openvdb::Vec3SGrid>(all[i]);
+        p.name = p.base().getName();
+        p.source_class = p.base().getGridClass();
+        if (!p.base().transform().baseMap()->isLinear())
+            throw Error(label + ": grid " + grid_summary(p.base()) + " has a non-affine (" +
+                        p.base().transform().mapType() +
                         ") transform, which NanoVDB cannot represent");
-        if (p.source_class == openvdb::GRID_LEVEL_SET && !opts.keep_level_sets) {
+        if (p.grid && p.source_class == openvdb::GRID_LEVEL_SET && !opts.keep_level_sets) {
             // Narrow band -> 0..1 ramp, interior 1 (active), exterior 0 (inactive)
             openvdb::tools::sdfToFogVolume(*p.grid);
             p.grid->setGridClass(openvdb::GRID_FOG_VOLUME);
@@ -359,7 +366,7 @@ std::vector<Prepared> select_and_prepare(openvdb::GridPtrVec &all, const std::st
         out.push_back(std::move(p));
     }
     if (out.empty())
-        throw Error(label + ": no scalar float grid to convert; the file holds: " + list_grids(all));
+        throw Error(label + ": no float or vec3s grid to convert; the file holds: " + list_grids(all));
     return out;
 }
 
@@ -392,6 +399,16 @@ Handle convert_one(const FloatGrid &grid, Quantize q, const Options &opts) {
         throw Error("grid " + dq(grid.getName()) + ": NanoVDB conversion failed: " + e.what());
     }
     throw Error("unknown quantization");
+}
+
+/// A vec3s grid as NanoVDB's Vec3f (three floats per value, bit for bit)
+Handle convert_vec3(const openvdb::Vec3SGrid &grid) {
+    try {
+        return nanovdb::openToNanoVDB<nanovdb::HostBuffer, openvdb::Vec3STree, nanovdb::Vec3f>(
+            grid, nanovdb::StatsMode::Default, nanovdb::ChecksumMode::Full, 0);
+    } catch (const std::exception &e) {
+        throw Error("grid " + dq(grid.getName()) + ": NanoVDB conversion failed: " + e.what());
+    }
 }
 
 /// NanoVDB 32.4's FpN encoder indexes its leaf array without checking that
@@ -455,6 +472,7 @@ GridReport report_of(const Handle &h) {
     else if (auto *g = h.grid<nanovdb::Fp8>()) fill_report(*g, r);
     else if (auto *g = h.grid<nanovdb::Fp16>()) fill_report(*g, r);
     else if (auto *g = h.grid<nanovdb::FpN>()) fill_report(*g, r);
+    else if (auto *g = h.grid<nanovdb::Vec3f>()) fill_report(*g, r);
     return r;
 }
 
@@ -682,6 +700,55 @@ struct Verifier {
     }
 };
 
+/// --verify for vec3s -> Vec3f: every sampled value bit for bit (3 floats)
+/// and its active state, at random active voxels and points around the box
+bool verify_vec3(const openvdb::Vec3SGrid &vdb, const nanovdb::NanoGrid<nanovdb::Vec3f> &nano,
+                 const std::string &name, const Options &opts) {
+    uint64_t mismatches = 0, checked = 0;
+    auto fail = [&](const std::string &msg) {
+        if (++mismatches <= 10) {
+            std::fflush(stdout);
+            std::fprintf(stderr, "vdb2nvdb: verify: grid %s: %s\n", dq(name).c_str(), msg.c_str());
+        }
+    };
+    if (nano.activeVoxelCount() != vdb.activeVoxelCount())
+        fail("active voxel count " + fmt_count(nano.activeVoxelCount()) + " instead of " +
+             fmt_count(vdb.activeVoxelCount()));
+    std::vector<const openvdb::Vec3STree::LeafNodeType *> leaves;
+    for (auto it = vdb.tree().cbeginLeaf(); it; ++it)
+        leaves.push_back(it.getLeaf());
+    const CoordBBox vbox = vdb.evalActiveVoxelBoundingBox();
+    auto vacc = vdb.getConstAccessor();
+    auto nacc = nano.getAccessor();
+    Rng rng(opts.seed ^ 0x766563337665633full);
+    for (uint64_t s = 0; s < opts.verify; ++s) {
+        Coord c;
+        if (s % 2 == 0 && !leaves.empty()) {
+            const auto *leaf = leaves[size_t(rng.below(leaves.size()))];
+            c = leaf->offsetToGlobalCoord(openvdb::Index(rng.below(512)));
+        } else {
+            const CoordBBox b = vbox.empty() ? CoordBBox(Coord(-8), Coord(8))
+                                             : CoordBBox(vbox.min().offsetBy(-2), vbox.max().offsetBy(2));
+            c = Coord(rng.range(b.min().x(), b.max().x()), rng.range(b.min().y(), b.max().y()),
+                      rng.range(b.min().z(), b.max().z()));
+        }
+        const openvdb::Vec3s a = vacc.getValue(c);
+        const nanovdb::Vec3f v = nacc.getValue(nanovdb::Coord(c.x(), c.y(), c.z()));
+        bool same = vacc.isValueOn(c) == nacc.isActive(nanovdb::Coord(c.x(), c.y(), c.z()));
+        for (int k = 0; k < 3; ++k)
+            same &= float_bits(a[k]) == float_bits(v[k]);
+        if (!same)
+            fail("mismatch at " + fmt_coord(c) + ": OpenVDB (" + fmt_float(a[0]) + ", " +
+                 fmt_float(a[1]) + ", " + fmt_float(a[2]) + "), written file (" +
+                 fmt_float(v[0]) + ", " + fmt_float(v[1]) + ", " + fmt_float(v[2]) + ")");
+        ++checked;
+    }
+    if (mismatches == 0 && !opts.quiet)
+        std::printf("verified %s: %s samples (voxels of its leaves, in and around the bbox) "
+                    "identical\n", dq(name).c_str(), fmt_count(checked).c_str());
+    return mismatches == 0;
+}
+
 // ---------------------------------------------------------------------------
 //  Dense export (Mitsuba .vol, version 3)
 // ---------------------------------------------------------------------------
@@ -692,7 +759,8 @@ struct DenseBox {
         return uint64_t(max.x() - min.x() + 1) * uint64_t(max.y() - min.y() + 1) *
                uint64_t(max.z() - min.z() + 1);
     }
-    uint64_t bytes() const { return 48 + 4 * voxels(); }
+    int channels = 1;
+    uint64_t bytes() const { return 48 + 4 * uint64_t(channels) * voxels(); }
 };
 
 /// The active index bbox [min, max], or the single voxel 0 for an empty grid
@@ -730,23 +798,32 @@ void write_dense(const nanovdb::NanoGrid<BuildT> &nano, const openvdb::math::Tra
     std::ofstream os(path, std::ios::binary | std::ios::trunc);
     if (!os)
         throw Error("cannot write " + dq(path) + ": " + std::strerror(errno));
+    using Value = typename nanovdb::NanoGrid<BuildT>::ValueType;
+    constexpr int channels = std::is_same_v<Value, nanovdb::Vec3f> ? 3 : 1;
     const char magic[4] = { 'V', 'O', 'L', 3 };
-    const int32_t header[5] = { 1, res[0], res[1], res[2], 1 };
+    const int32_t header[5] = { 1, res[0], res[1], res[2], channels };
     const float bbox[6] = { float(wb.min()[0]), float(wb.min()[1]), float(wb.min()[2]),
                             float(wb.max()[0]), float(wb.max()[1]), float(wb.max()[2]) };
     os.write(magic, 4);
     os.write(reinterpret_cast<const char *>(header), sizeof(header));
     os.write(reinterpret_cast<const char *>(bbox), sizeof(bbox));
     // One z slab at a time: memory is one slab, not the dense grid
-    std::vector<float> slab(size_t(res[0]) * size_t(res[1]));
+    std::vector<float> slab(size_t(res[0]) * size_t(res[1]) * channels);
     for (int32_t z = 0; z < res[2] && os; ++z) {
         tbb::parallel_for(tbb::blocked_range<int32_t>(0, res[1], 16),
                           [&](const tbb::blocked_range<int32_t> &r) {
             auto acc = nano.getAccessor();
             for (int32_t y = r.begin(); y != r.end(); ++y)
-                for (int32_t x = 0; x < res[0]; ++x)
-                    slab[size_t(y) * size_t(res[0]) + size_t(x)] = acc.getValue(
+                for (int32_t x = 0; x < res[0]; ++x) {
+                    const Value v = acc.getValue(
                         nanovdb::Coord(box.min.x() + x, box.min.y() + y, box.min.z() + z));
+                    float *out = &slab[(size_t(y) * size_t(res[0]) + size_t(x)) * channels];
+                    if constexpr (channels == 3) {
+                        out[0] = v[0]; out[1] = v[1]; out[2] = v[2];
+                    } else {
+                        out[0] = v;
+                    }
+                }
         });
         os.write(reinterpret_cast<const char *>(slab.data()),
                  std::streamsize(slab.size() * sizeof(float)));
@@ -833,7 +910,8 @@ int convert_grids(openvdb::GridPtrVec all, const std::string &label, const std::
     if (!opts.dense.empty()) {
         const uint64_t limit = dense_limit(opts);
         for (size_t i = 0; i < grids.size(); ++i) {
-            DenseBox d = dense_box(grids[i].grid->evalActiveVoxelBoundingBox());
+            DenseBox d = dense_box(grids[i].base().evalActiveVoxelBoundingBox());
+            d.channels = grids[i].vec ? 3 : 1;
             if (d.bytes() > limit)
                 throw Error("--dense: grid " + dq(grids[i].name) + " would need " +
                             fmt_bytes(d.bytes()) + " dense (" + fmt_count(d.voxels()) +
@@ -869,17 +947,26 @@ int convert_grids(openvdb::GridPtrVec all, const std::string &label, const std::
         if (!os)
             throw Error("cannot write " + dq(out) + ": " + std::strerror(errno));
         for (Prepared &p : grids) {
-            const Quantize q = effective_quantize(*p.grid, opts.quantize);
-            if (q != opts.quantize)
-                note("grid " + dq(p.name) + " has no leaf nodes: written as fp16 instead of "
-                     "fpn (NanoVDB 32.4's FpN encoder needs a leaf); it holds no quantized values");
             auto t0 = Clock::now();
-            Handle h = convert_one(*p.grid, q, opts);
-            if (opts.corrupt_for_test)
-                corrupt_for_test(h);
+            Handle h;
+            if (p.vec) {
+                if (opts.quantize != Quantize::Float)
+                    note("grid " + dq(p.name) + " (vec3s) is written as Vec3f: --quantize "
+                         "applies to float grids");
+                h = convert_vec3(*p.vec);
+            } else {
+                const Quantize q = effective_quantize(*p.grid, opts.quantize);
+                if (q != opts.quantize)
+                    note("grid " + dq(p.name) + " has no leaf nodes: written as fp16 instead of "
+                         "fpn (NanoVDB 32.4's FpN encoder needs a leaf); it holds no quantized "
+                         "values");
+                h = convert_one(*p.grid, q, opts);
+                if (opts.corrupt_for_test)
+                    corrupt_for_test(h);
+            }
             GridReport r = report_of(h);
             r.name = p.name;
-            r.cls = class_name(p.grid->getGridClass());
+            r.cls = class_name(p.base().getGridClass());
             try {
                 nanovdb::io::writeGrid(os, h, opts.codec);
             } catch (const std::exception &e) {
@@ -912,17 +999,31 @@ int convert_grids(openvdb::GridPtrVec all, const std::string &label, const std::
                             ExitVerify);
             }
             auto t0 = Clock::now();
-            with_grid(h, grids[i].name, [&](const auto &nano) {
-                if (opts.verify > 0) {
-                    Verifier v{ *grids[i].grid, grids[i].name, opts };
-                    ok = v.run(nano) && ok;
-                }
+            auto check_and_export = [&](const auto &nano, auto &&verify) {
+                if (opts.verify > 0)
+                    ok = verify(nano) && ok;
                 if (ok && !opts.dense.empty()) {
-                    write_dense(nano, grids[i].grid->transform(), dense_boxes[i],
+                    write_dense(nano, grids[i].base().transform(), dense_boxes[i],
                                 dense_tmps[i]->tmp_path());
                     say(opts, "dense export of " + dq(grids[i].name) + ": " +
                                   dense_tmps[i]->path());
                 }
+            };
+            if (grids[i].vec) {
+                const auto *nano = h.grid<nanovdb::Vec3f>();
+                if (!nano)
+                    throw Error("grid " + dq(grids[i].name) + " in the written file is not Vec3f",
+                                ExitVerify);
+                check_and_export(*nano, [&](const auto &n) {
+                    return verify_vec3(*grids[i].vec, n, grids[i].name, opts);
+                });
+                continue; // probes: float grids
+            }
+            with_grid(h, grids[i].name, [&](const auto &nano) {
+                check_and_export(nano, [&](const auto &n) {
+                    Verifier v{ *grids[i].grid, grids[i].name, opts };
+                    return v.run(n);
+                });
             });
             if (ok && !opts.probes.empty())
                 print_probes(*grids[i].grid, h, grids[i].name, opts);
@@ -976,6 +1077,11 @@ int verify_only(const std::string &in, const std::string &nvdb, const Options &o
         } catch (const std::exception &e) {
             throw Error(dq(nvdb) + ": cannot read grid " + std::to_string(i) + ": " + e.what(),
                         ExitVerify);
+        }
+        if (grids[i].vec) {
+            const auto *nano = h.grid<nanovdb::Vec3f>();
+            ok = nano && verify_vec3(*grids[i].vec, *nano, grids[i].name, o) && ok;
+            continue;
         }
         with_grid(h, grids[i].name, [&](const auto &nano) {
             Verifier v{ *grids[i].grid, grids[i].name, o };
