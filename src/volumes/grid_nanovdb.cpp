@@ -43,7 +43,8 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
    - |string|
    - Which grid of the file to use: its name, or its index in the file
      (``"0"``, ``"1"``, ...) when no grid has that name. Only that grid's
-     bytes are read. (Default: the first float grid of the file)
+     bytes are read. Types: float, Half, Fp4, Fp8, Fp16, FpN (one channel)
+     and Vec3f (three). (Default: the first grid of one of these types)
 
  * - filter_type
    - |string|
@@ -59,6 +60,12 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
      ``to_world``. If ``true``, local space is the grid's own world space
      (its index-to-world map from the file), so the volume lines up with
      other VDB tools. (Default: ``false``)
+
+ * - raw
+   - |bool|
+   - Vec3f grids in spectral variants: ``false`` turns the colours into
+     spectra (``eval()``); ``true`` keeps the raw vectors (``eval_3()``), as
+     ``gridvolume``'s ``raw``. (Default: ``false``)
 
  * - invalid_values
    - |string|
@@ -87,7 +94,7 @@ a dense conversion: a cloud that needs hundreds of megabytes as a dense
 ``gridvolume`` stays at the size of its ``.nvdb`` file, in CPU and GPU memory
 alike. It works in every variant (``scalar_*``, ``llvm_ad_*``, ``cuda_ad_*``;
 RGB, monochrome, spectral and polarized), where it behaves like a
-single-channel ``gridvolume``.
+single-channel ``gridvolume`` (Vec3f grids: a 3-channel one, see ``raw``).
 
 Lookups traverse the NanoVDB tree (root, upper, lower and leaf nodes) with a
 Dr.Jit translation of PNanoVDB. Values outside the active voxels are whatever
@@ -115,8 +122,18 @@ make the ``heterogeneous`` medium's majorant (``scale * max()``) several
 times too large. Every lookup is clamped to ``max()``, so it is a true upper
 bound even at points outside the box (and for the few ulps by which rounded
 trilinear weights can overshoot the largest corner). Grids containing
-NaN or infinite values are rejected unless ``invalid_values="clamp"``. Only float
-grids are supported; other grid types fail with a message that names them.
+NaN or infinite values are rejected unless ``invalid_values="clamp"``.
+
+Value types: quantized grids (Fp4, Fp8, Fp16, FpN) and Half grids are decoded
+in the lookup, as PNanoVDB decodes them, and never expanded: the backend
+holds their bytes. A Vec3f grid is a 3-channel volume that behaves like
+``gridvolume`` on a 3-channel ``.vol`` of the same box: ``eval_3()`` the
+vector, ``eval()`` the colour (RGB), its luminance (monochrome) or its
+sRGB-model spectrum (spectral: each voxel's colour becomes coefficients in
+place and a scale beside the grid, one float per leaf voxel), ``eval_1()``
+the luminance, ``max_per_channel()`` each channel's ``max()``. Other grid
+types (double, int, index, points, masks) fail with a message that names the
+type and lists the supported ones.
 
 .. tabs::
     .. code-tab:: xml
