@@ -91,7 +91,7 @@ cp "$py_tar" "$OUT/python.tar.xz"
 # ---- 2. The built plugin and binaries, with the shared libraries they need
 mkdir -p "$STAGE/build/plugins" "$STAGE/build/bin" "$STAGE/build/lib"
 cp "$BUILD/plugins/nanovdbvolume.so" "$BUILD/plugins/volpathlocal.so" "$STAGE/build/plugins/"
-bins=(test_translation test_hdda test_majorant_walk test_io nvdb_make_test_grid
+bins=(test_translation test_hdda test_majorant_walk test_value_types test_io nvdb_make_test_grid
       nvdb_make_stability_grid nvdb_big_grid vdb2nvdb)
 for b in "${bins[@]}"; do
   [ -x "$BUILD/bin/$b" ] && cp "$BUILD/bin/$b" "$STAGE/build/bin/"

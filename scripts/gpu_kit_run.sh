@@ -87,6 +87,7 @@ if want doctest; then
   step doctest_io "$H/build/bin/test_io"
   step doctest_hdda "$H/build/bin/test_hdda"
   step doctest_majorant_walk "$H/build/bin/test_majorant_walk"
+  step doctest_value_types "$H/build/bin/test_value_types"
 fi
 if want pytest; then
   step pytest "$PYTHON" -m pytest tests -p no:cacheprovider -rs --durations=15 \

@@ -37,6 +37,7 @@
 
 #include <array>
 #include <cstring>
+#include <dlfcn.h>
 #include <map>
 #include <memory>
 #include <vector>
@@ -273,8 +274,13 @@ TEST_CASE("float -> half (the loader's, for invalid_values=clamp) rounds as F16C
     CHECK(mismatches == 0);
 }
 
-TEST_CASE_TEMPLATE("typed grids: address, level and value equal PNanoVDB's per-type readers",
-                   UInt32, uint32_t, dr::LLVMArray<uint32_t>) {
+bool cuda_available() {
+    static const bool available = dlopen("libcuda.so.1", RTLD_LAZY | RTLD_LOCAL) != nullptr;
+    return available;
+}
+
+/// Reads of every typed grid on the backend of UInt32 against PNanoVDB's
+template <typename UInt32> void check_typed_reads() {
     init_backend<UInt32>();
     for (const auto &cp : cases()) {
         const Case &c = *cp;
@@ -298,7 +304,8 @@ TEST_CASE_TEMPLATE("typed grids: address, level and value equal PNanoVDB's per-t
                         CHECK(ref.value[i] == got.value[i]);
                     }
                 }
-                MESSAGE(std::string(dr::is_jit_v<UInt32> ? "LLVM " : "scalar "),
+                MESSAGE(std::string(!dr::is_jit_v<UInt32> ? "scalar "
+                                    : dr::backend_v<UInt32> == JitBackend::CUDA ? "CUDA " : "LLVM "),
                         std::string(fast ? "fast" : "faithful"),
                         ", ", c.label(), ": ", c.coords.size() - mismatches, " of ",
                         c.coords.size(), " reads identical to PNanoVDB; per level (leaf, lower, "
@@ -311,6 +318,15 @@ TEST_CASE_TEMPLATE("typed grids: address, level and value equal PNanoVDB's per-t
             }
         }
     }
+}
+
+TEST_CASE_TEMPLATE("typed grids: address, level and value equal PNanoVDB's per-type readers",
+                   UInt32, uint32_t, dr::LLVMArray<uint32_t>) {
+    check_typed_reads<UInt32>();
+}
+
+TEST_CASE("CUDA: typed grids' reads equal PNanoVDB's" * doctest::skip(!cuda_available())) {
+    check_typed_reads<dr::CUDAArray<uint32_t>>();
 }
 
 TEST_CASE("typed grids: values equal NanoVDB's accessor (Half: F16C of the float grid)") {
