@@ -25,6 +25,7 @@
 #include <drjit-core/jit.h>
 
 #include <doctest/doctest.h>
+#include <backends.h>
 #include <grids.h>
 
 #include <array>
@@ -35,6 +36,9 @@
 namespace ndr = nanovdb_drjit;
 namespace loader = nanovdb_loader;
 namespace dr = drjit;
+using nvdb_test::cuda_available;
+using nvdb_test::init_backend;
+using nvdb_test::jit_coords;
 
 using Coord3 = std::array<int32_t, 3>;
 
@@ -81,18 +85,6 @@ struct Reads {
 
     void resize(size_t n) { tile.resize(n); address.resize(n); level.resize(n); value.resize(n); }
 };
-
-/// The first n query coordinates of a grid as a JIT coordinate array
-template <typename UInt32>
-ndr::Coord<UInt32> jit_coords(const std::vector<Coord3> &coords, size_t n) {
-    using Int32 = dr::int32_array_t<UInt32>;
-    std::vector<int32_t> x(n), y(n), z(n);
-    for (size_t i = 0; i < n; ++i) {
-        x[i] = coords[i][0]; y[i] = coords[i][1]; z[i] = coords[i][2];
-    }
-    return { dr::load<Int32>(x.data(), n), dr::load<Int32>(y.data(), n),
-             dr::load<Int32>(z.data(), n) };
-}
 
 /// Reference: PNanoVDB itself
 Reads read_pnanovdb(const TestGrid &g) {
@@ -210,18 +202,6 @@ void compare(const char *backend, const TestGrid &g, const Reads &ref, const Rea
             ", ", levels[4]);
     CHECK(g.coords.size() >= QUERY_COUNT);
     CHECK(mismatches == 0);
-}
-
-bool cuda_available() {
-    static const bool available = dlopen("libcuda.so.1", RTLD_LAZY | RTLD_LOCAL) != nullptr;
-    return available;
-}
-
-template <typename UInt32> void init_backend() {
-    if constexpr (dr::is_jit_v<UInt32>) {
-        jit_set_log_level_stderr(LogLevel::Warn);
-        jit_init(1u << (uint32_t) dr::backend_v<UInt32>);
-    }
 }
 
 /// Stencil addresses (8 per coordinate) from the translation's accessor

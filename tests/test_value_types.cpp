@@ -33,6 +33,7 @@
 #include <drjit-core/jit.h>
 
 #include <doctest/doctest.h>
+#include <backends.h>
 #include <typed_grids.h>
 
 #include <array>
@@ -45,6 +46,9 @@
 namespace ndr = nanovdb_drjit;
 namespace loader = nanovdb_loader;
 namespace dr = drjit;
+using nvdb_test::cuda_available;
+using nvdb_test::init_backend;
+using nvdb_test::jit_coords;
 
 using Coord3 = std::array<int32_t, 3>;
 static constexpr size_t QUERY_COUNT = 1000000;
@@ -56,13 +60,6 @@ uint32_t bits_of(float f) {
     uint32_t b;
     std::memcpy(&b, &f, 4);
     return b;
-}
-
-template <typename UInt32> void init_backend() {
-    if constexpr (dr::is_jit_v<UInt32>) {
-        jit_set_log_level_stderr(LogLevel::Warn);
-        jit_init(1u << (uint32_t) dr::backend_v<UInt32>);
-    }
 }
 
 /// A typed grid with its validation, reader plan and query coordinates
@@ -138,17 +135,6 @@ template <typename UInt32, typename Fn> void with_reader(const Case &c, bool fas
     else
         buf = c.grid.words.data();
     ndr::Reader<UInt32>::from_plan(fast ? c.plan : c.plan.faithful()).apply(buf, fn);
-}
-
-template <typename UInt32>
-ndr::Coord<UInt32> jit_coords(const std::vector<Coord3> &coords, size_t n) {
-    using Int32 = dr::int32_array_t<UInt32>;
-    std::vector<int32_t> x(n), y(n), z(n);
-    for (size_t i = 0; i < n; ++i) {
-        x[i] = coords[i][0]; y[i] = coords[i][1]; z[i] = coords[i][2];
-    }
-    return { dr::load<Int32>(x.data(), n), dr::load<Int32>(y.data(), n),
-             dr::load<Int32>(z.data(), n) };
 }
 
 /// The translation's reads, for grid type T
@@ -272,11 +258,6 @@ TEST_CASE("float -> half (the loader's, for invalid_values=clamp) rounds as F16C
     }
     MESSAGE(inputs.size(), " floats, ", mismatches, " mismatches against F16C");
     CHECK(mismatches == 0);
-}
-
-bool cuda_available() {
-    static const bool available = dlopen("libcuda.so.1", RTLD_LAZY | RTLD_LOCAL) != nullptr;
-    return available;
 }
 
 /// Reads of every typed grid on the backend of UInt32 against PNanoVDB's
