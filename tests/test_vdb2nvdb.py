@@ -130,7 +130,7 @@ def test01_help_explains_every_option():
 
 def test02_list_shows_grids_in_file_order(gen):
     p = run("--list", gen("multi"))
-    rows = [l.split() for l in p.stdout.splitlines()[2:]]
+    rows = [l.split() for l in p.stdout.splitlines()[2:] if re.match(r"  \d", l)]
     assert [r[1] for r in rows] == ['"density"', '"vel"', '"ls_sphere"', '"flags"',
                                     '"temperature"']
     assert [r[2] for r in rows] == ["float", "vec3s", "float", "int32", "float"]
@@ -141,6 +141,28 @@ def test02_list_shows_grids_in_file_order(gen):
     assert re.search(r'"flags"\s+int32\s+unknown\s+729\s', text)
     assert re.search(r'"temperature"\s+float\s+unknown\s+16,384\s+\[\(40, -8, 0\), \(71, 23, 15\)\]',
                      text)
+
+
+def test02b_list_shows_world_bbox_transform_and_values(gen):
+    # The generated cloud: index -> world is diag(0.01, 0.01, 0.0125) + (0.2, 1.0, -0.3)
+    p = run("--list", gen("cloud"))
+    lines = p.stdout.splitlines()
+    row = [l for l in lines if re.match(r"  0 ", l)][0]
+    lo, hi = [np.array(list(map(int, m))) for m in
+              re.findall(r"\((-?\d+), (-?\d+), (-?\d+)\)", row)[:2]]
+    world = [l for l in lines if "world bbox" in l][0]
+    nums = list(map(float, re.findall(r"-?\d+(?:\.\d+)?(?:e-?\d+)?", world.split("size")[0])))
+    np.testing.assert_allclose(nums[:3], CLOUD_SCALE * (lo - 0.5) + CLOUD_OFFSET, rtol=1e-5)
+    np.testing.assert_allclose(nums[3:6], CLOUD_SCALE * (hi + 0.5) + CLOUD_OFFSET, rtol=1e-5)
+    xf = [l for l in lines if "transform" in l][0]
+    assert "translation (0.2, 1, -0.3)" in xf and "voxel size (0.01, 0.01, 0.0125)" in xf
+    assert "no rotation" in xf
+    values = [l for l in lines if "active values" in l][0]
+    lo_v, hi_v = map(float, re.search(r"\[(\S+), (\S+)\]", values).groups())
+    assert 0 <= lo_v < hi_v
+    # A vec3s grid: the range of its largest channel
+    p = run("--list", gen("multi"))
+    assert "active values' largest channel in" in p.stdout
 
 
 # ---------------------------------------------------------------------------
