@@ -1,0 +1,122 @@
+"""A NanoVDB volume in a scene of its own: placed in its world space
+(use_grid_transform), inside a null-BSDF box fitted to it, framed by a
+camera, lit by a sky and a sun."""
+import math
+
+
+def default_scale(volume, optical_depth=8.0):
+    """A density scale that gives the volume a mean optical depth of about
+    `optical_depth` across its box: optical_depth / (mean majorant x mean
+    extent), the mean majorant being local_majorant_ratio x max() (what the
+    plugin's per-node bounds say about the average density; it bounds the
+    mean density from above, so the actual depth is lower)."""
+    s = str(volume)
+    vmax = volume.max()
+    ratio = 1.0
+    for line in s.splitlines():
+        if "local_majorant_ratio" in line:
+            ratio = float(line.split("=")[1].strip(" ,"))
+    bb = volume.bbox()
+    extent = sum(float(bb.max[k] - bb.min[k]) for k in range(3)) / 3.0
+    mean = max(vmax * ratio, 1e-12)
+    if not (vmax > 0.0) or not (extent > 0.0):
+        return 1.0
+    return optical_depth / (mean * extent)
+
+
+def _project(p, origin, target, fov):
+    """Image coordinates in [-1, 1]^2 (x right, y up) of world point p seen
+    from origin towards target with up +y and a square film; None if behind"""
+    def sub(a, b): return [a[k] - b[k] for k in range(3)]
+    def dot(a, b): return sum(a[k] * b[k] for k in range(3))
+    def cross(a, b): return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                             a[0] * b[1] - a[1] * b[0]]
+    def norm(a):
+        n = math.sqrt(dot(a, a))
+        return [x / n for x in a]
+    w = norm(sub(target, origin))
+    u = norm(cross(w, [0.0, 1.0, 0.0]))
+    v = cross(u, w)
+    d = sub(p, origin)
+    z = dot(d, w)
+    if z <= 0:
+        return None
+    t = math.tan(math.radians(fov) / 2)
+    return dot(d, u) / (z * t), dot(d, v) / (z * t)
+
+
+def camera(bbox, fov=35.0, direction=(1.0, 0.55, 1.3), fill=0.85):
+    """A camera that frames the box: looking at its centre from `direction`,
+    at the smallest distance where all 8 corners lie within `fill` of the
+    frame's half-width (so the volume fills most of the image, whatever its
+    proportions)"""
+    c = [0.5 * (bbox.min[k] + bbox.max[k]) for k in range(3)]
+    r = 0.5 * math.sqrt(sum((bbox.max[k] - bbox.min[k]) ** 2 for k in range(3)))
+    r = max(r, 1e-6)
+    n = math.sqrt(sum(d * d for d in direction))
+    dirn = [d / n for d in direction]
+    corners = [[bbox.max[k] if (i >> k) & 1 else bbox.min[k] for k in range(3)] for i in range(8)]
+
+    def fits(dist):
+        origin = [c[k] + dirn[k] * dist for k in range(3)]
+        for p in corners:
+            q = _project(p, origin, c, fov)
+            if q is None or abs(q[0]) > fill or abs(q[1]) > fill:
+                return False
+        return True
+
+    hi = r / math.sin(math.radians(fov) / 2) * 1.2  # the bounding sphere fits
+    while not fits(hi):
+        hi *= 1.5
+    lo = r * 1.01  # outside the sphere
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if fits(mid):
+            hi = mid
+        else:
+            lo = mid
+    origin = [c[k] + dirn[k] * hi for k in range(3)]
+    return dict(origin=origin, target=c, fov=fov, distance=hi, radius=r)
+
+
+def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
+                 integrator="volpathlocal", albedo=0.9, filter_type="trilinear"):
+    """(scene dict, info) for `filename` (.nvdb). `scale` None: default_scale().
+    info holds the volume's world bbox, the camera and the scale used."""
+    vdict = {"type": "nanovdbvolume", "filename": str(filename), "use_grid_transform": True,
+             "filter_type": filter_type}
+    if grid:
+        vdict["grid"] = grid
+    volume = mi.load_dict(vdict)
+    bb = volume.bbox()
+    if scale is None:
+        scale = default_scale(volume)
+    cam = camera(bb)
+    centre = [0.5 * (bb.min[k] + bb.max[k]) for k in range(3)]
+    half = [max(0.5 * (bb.max[k] - bb.min[k]), 1e-6) * 1.0001 for k in range(3)]
+    T = mi.ScalarTransform4f
+    scene = {
+        "type": "scene",
+        "integrator": {"type": integrator, "max_depth": 64},
+        "sensor": {
+            "type": "perspective",
+            "fov": cam["fov"],
+            "to_world": T().look_at(origin=cam["origin"], target=cam["target"], up=[0, 1, 0]),
+            "sampler": {"type": "independent", "sample_count": spp},
+            "film": {"type": "hdrfilm", "width": res, "height": res,
+                     "rfilter": {"type": "gaussian"}},
+        },
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.15, 0.18, 0.25]}},
+        "sun": {"type": "directional", "direction": [-1, -1, -0.5],
+                "irradiance": {"type": "rgb", "value": [6, 5.7, 5.1]}},
+        "box": {
+            "type": "cube",  # [-1, 1]^3, fitted to the volume's world box
+            "to_world": T().translate(centre).scale(half),
+            "bsdf": {"type": "null"},
+            "interior": {"type": "heterogeneous", "sigma_t": volume,
+                         "albedo": {"type": "rgb", "value": [albedo] * 3}, "scale": scale},
+        },
+    }
+    info = dict(bbox_min=[float(x) for x in bb.min], bbox_max=[float(x) for x in bb.max],
+                camera=cam, scale=scale, volume=volume)
+    return scene, info
