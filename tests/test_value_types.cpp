@@ -75,7 +75,7 @@ const std::vector<std::unique_ptr<Case>> &cases() {
         std::vector<std::unique_ptr<Case>> out;
         uint64_t seed = 100;
         for (const std::string &name : nvdb_test::grid_names()) {
-            for (const std::string &type : { "fp4", "fp8", "fp16", "fpn", "half" }) {
+            for (const char *type : { "fp4", "fp8", "fp16", "fpn", "half" }) {
                 if (!nvdb_test::has_typed_grid(name, type))
                     continue; // FpN without leaves: NanoVDB cannot write it
                 auto c = std::make_unique<Case>();

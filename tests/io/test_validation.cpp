@@ -332,7 +332,7 @@ TEST_CASE("typed grids: validation, statistics and hostile quantized leaves") {
         return b;
     };
     SUBCASE("every type validates; its statistics are those of its decoded values") {
-        for (const std::string type : { "fp4", "fp8", "fp16", "fpn", "half", "vec3f" }) {
+        for (const char *type : { "fp4", "fp8", "fp16", "fpn", "half", "vec3f" }) {
             INFO("type " << type);
             const nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", type);
             Bytes b = words_of(g);
@@ -345,7 +345,7 @@ TEST_CASE("typed grids: validation, statistics and hostile quantized leaves") {
             const auto *fg = g.float_grid.grid<float>();
             auto acc = fg->getAccessor();
             const auto *leaf = fg->tree().getFirstLeaf();
-            if (type == "vec3f") {
+            if (std::string(type) == "vec3f") {
                 auto ref = g.reference3();
                 for (uint32_t n = 0; n < fg->tree().nodeCount(0); ++n)
                     for (uint32_t v = 0; v < 512; ++v) {
@@ -388,7 +388,7 @@ TEST_CASE("typed grids: validation, statistics and hostile quantized leaves") {
                        "FpN leaf " + std::to_string(count - 1), "extends past the end");
     }
     SUBCASE("quantized grids truncated: mGridSize beyond the buffer") {
-        for (const std::string type : { "fp4", "fpn", "half", "vec3f" }) {
+        for (const char *type : { "fp4", "fpn", "half", "vec3f" }) {
             const nvdb_test::TypedGrid g = nvdb_test::make_typed_grid("noisy_cloud", type);
             Bytes b = words_of(g);
             b.resize(b.size() - 100);
