@@ -174,14 +174,7 @@ struct Segment {
 
 /// Calls fn(std::integral_constant<uint32_t, T>) for a grid type
 template <typename Fn> decltype(auto) with_type(uint32_t grid_type, Fn &&fn) {
-    using std::integral_constant;
-    switch (grid_type) {
-        case 9: return fn(integral_constant<uint32_t, 9>{});
-        case 14: return fn(integral_constant<uint32_t, 14>{});
-        case 16: return fn(integral_constant<uint32_t, 16>{});
-        case 6: return fn(integral_constant<uint32_t, 6>{});
-        default: return fn(integral_constant<uint32_t, 1>{});
-    }
+    return ndr::layout::visit_value_type(grid_type, std::forward<Fn>(fn));
 }
 
 /// The scalar walk of one ray

@@ -20,6 +20,7 @@
 #pragma once
 
 #include <cstdint>
+#include <type_traits>
 
 namespace nanovdb_drjit::layout {
 
@@ -229,6 +230,31 @@ template <uint32_t GridType> struct grid_type_traits {
 constexpr const GridTypeConstants *grid_type_constants(uint32_t grid_type) {
     const ValueType *t = value_type(grid_type);
     return t ? t->constants : nullptr;
+}
+
+/**
+ * Calls fn(std::integral_constant<uint32_t, T>{}) with the supported type T
+ * that `grid_type` names (float for any other value): the one place where a
+ * run-time grid type becomes a compile-time one. Every type is compiled, one
+ * is called. WithVec3f = false leaves Vec3f out (it becomes float), for code
+ * that reads scalar values only.
+ */
+template <bool WithVec3f = true, typename Fn>
+decltype(auto) visit_value_type(uint32_t grid_type, Fn &&fn) {
+    using std::integral_constant;
+    switch (grid_type) {
+        case GRID_TYPE_HALF: return fn(integral_constant<uint32_t, GRID_TYPE_HALF>{});
+        case GRID_TYPE_FP4:  return fn(integral_constant<uint32_t, GRID_TYPE_FP4>{});
+        case GRID_TYPE_FP8:  return fn(integral_constant<uint32_t, GRID_TYPE_FP8>{});
+        case GRID_TYPE_FP16: return fn(integral_constant<uint32_t, GRID_TYPE_FP16>{});
+        case GRID_TYPE_FPN:  return fn(integral_constant<uint32_t, GRID_TYPE_FPN>{});
+        case GRID_TYPE_VEC3F:
+            if constexpr (WithVec3f)
+                return fn(integral_constant<uint32_t, GRID_TYPE_VEC3F>{});
+            else
+                return fn(integral_constant<uint32_t, GRID_TYPE_FLOAT>{});
+        default:             return fn(integral_constant<uint32_t, GRID_TYPE_FLOAT>{});
+    }
 }
 
 /// Bytes of an FpN leaf whose flags byte is `flags`: the header and 512

@@ -661,26 +661,15 @@ private:
     }
 
     /// Calls fn(std::integral_constant<uint32_t, grid type>) for the grid's
-    /// value type: every type is compiled, one is traced
+    /// scalar value type (layout.h's visit_value_type): every type is
+    /// compiled, one is traced. Vec3f has its own lookups (lookup3).
     template <typename Fn> decltype(auto) with_type(Fn &&fn) const {
-        namespace L = nanovdb_drjit::layout;
-        using std::integral_constant;
-        switch (m_grid_type) {
-            case L::GRID_TYPE_HALF: return fn(integral_constant<uint32_t, L::GRID_TYPE_HALF>{});
-            case L::GRID_TYPE_FP4:  return fn(integral_constant<uint32_t, L::GRID_TYPE_FP4>{});
-            case L::GRID_TYPE_FP8:  return fn(integral_constant<uint32_t, L::GRID_TYPE_FP8>{});
-            case L::GRID_TYPE_FP16: return fn(integral_constant<uint32_t, L::GRID_TYPE_FP16>{});
-            case L::GRID_TYPE_FPN:  return fn(integral_constant<uint32_t, L::GRID_TYPE_FPN>{});
-            default:                return fn(integral_constant<uint32_t, L::GRID_TYPE_FLOAT>{});
-        }
+        return nanovdb_drjit::layout::visit_value_type<false>(m_grid_type, std::forward<Fn>(fn));
     }
 
     /// with_type() for the majorant walk, which reads every type's tiles
     template <typename Fn> decltype(auto) with_walk_type(Fn &&fn) const {
-        namespace L = nanovdb_drjit::layout;
-        if (m_grid_type == L::GRID_TYPE_VEC3F)
-            return fn(std::integral_constant<uint32_t, L::GRID_TYPE_VEC3F>{});
-        return with_type(std::forward<Fn>(fn));
+        return nanovdb_drjit::layout::visit_value_type(m_grid_type, std::forward<Fn>(fn));
     }
 
     /// The grid as the translation reads it: a JIT array or a host pointer

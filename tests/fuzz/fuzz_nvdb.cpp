@@ -132,17 +132,7 @@ std::array<uint32_t, 3> translation_value(const Buffer &buf, uint32_t address, u
 
 /// Calls fn(std::integral_constant<uint32_t, T>) for the grid's value type
 template <typename Fn> void with_type(uint32_t grid_type, Fn &&fn) {
-    namespace L = ndr::layout;
-    using std::integral_constant;
-    switch (grid_type) {
-        case L::GRID_TYPE_HALF: return fn(integral_constant<uint32_t, L::GRID_TYPE_HALF>{});
-        case L::GRID_TYPE_FP4: return fn(integral_constant<uint32_t, L::GRID_TYPE_FP4>{});
-        case L::GRID_TYPE_FP8: return fn(integral_constant<uint32_t, L::GRID_TYPE_FP8>{});
-        case L::GRID_TYPE_FP16: return fn(integral_constant<uint32_t, L::GRID_TYPE_FP16>{});
-        case L::GRID_TYPE_FPN: return fn(integral_constant<uint32_t, L::GRID_TYPE_FPN>{});
-        case L::GRID_TYPE_VEC3F: return fn(integral_constant<uint32_t, L::GRID_TYPE_VEC3F>{});
-        default: return fn(integral_constant<uint32_t, L::GRID_TYPE_FLOAT>{});
-    }
+    ndr::layout::visit_value_type(grid_type, std::forward<Fn>(fn));
 }
 
 /// Lookups through one reader (the plan's or the faithful one) against PNanoVDB
