@@ -1,8 +1,18 @@
 #!/usr/bin/env bash
-# Installs what nanovdb-mitsuba needs on Debian 12 (run as root), then builds it.
-# Idempotent: packages already present are not fetched again.
+# Installs what nanovdb-mitsuba needs on Debian 12 (run as root), then builds
+# and installs it with pip (`pip install .`: the plugins, vdb2nvdb and
+# nanovdb-render), building in build/ so that a second run only rebuilds
+# what changed. Idempotent: packages already present are not fetched again.
+#   --no-tests: leave out the test programs (the quickstart needs none)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+BUILD_TESTS=ON
+for arg in "$@"; do
+  case "$arg" in
+    --no-tests) BUILD_TESTS=OFF ;;
+    *) echo "install.sh: unknown option $arg" >&2; exit 2 ;;
+  esac
+done
 
 APT_PACKAGES=(
   cmake ninja-build g++ pkg-config
@@ -13,7 +23,10 @@ APT_PACKAGES=(
   libllvm19           # Dr.Jit's LLVM backend fails with Debian's default libLLVM 14/15
   clang-14 libclang-rt-14-dev  # libFuzzer + ASan/UBSan runtimes for tests/fuzz
 )
-PIP_PACKAGES=(mitsuba==3.9.1 drjit==1.5.0 nanobind==3.1.0 numpy==2.4.6 pytest==9.2.0 matplotlib==3.11.2)
+# The build's requirements (pyproject.toml [build-system]) are installed here
+# and the build uses them (--no-build-isolation): no second download.
+PIP_PACKAGES=(mitsuba==3.9.1 drjit==1.5.0 nanobind==3.1.0 scikit-build-core==1.1.2
+              numpy==2.4.6 pytest==9.2.0 matplotlib==3.11.2)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -33,21 +46,22 @@ if ! "$PYTHON" -m pip --version >/dev/null 2>&1; then
   echo "== apt-get install python3-pip"
   apt-get update -qq && apt-get install -y -qq --no-install-recommends python3-pip >/dev/null
 fi
-PIP_FLAGS=(-q --disable-pip-version-check)
+PIP_FLAGS=(--disable-pip-version-check)
 if [ -f "$("$PYTHON" -c 'import sysconfig; print(sysconfig.get_path("stdlib"))')/EXTERNALLY-MANAGED" ]; then
   PIP_FLAGS+=(--break-system-packages)
 fi
 if ! "$PYTHON" - <<'PY' 2>/dev/null
 import importlib.metadata as md, sys
-want = {"mitsuba": "3.9.1", "drjit": "1.5.0"}
+want = {"mitsuba": "3.9.1", "drjit": "1.5.0", "scikit-build-core": "1.1.2"}
 sys.exit(0 if all(md.version(k) == v for k, v in want.items()) and
          all(md.version(k) for k in ("nanobind", "numpy", "pytest", "matplotlib")) else 1)
 PY
 then
   echo "== pip install ${PIP_PACKAGES[*]}"
-  "$PYTHON" -m pip install "${PIP_FLAGS[@]}" "${PIP_PACKAGES[@]}"
+  "$PYTHON" -m pip install -q "${PIP_FLAGS[@]}" "${PIP_PACKAGES[@]}"
 fi
 
-echo "== build (build/)"
-cmake -S . -B build -G Ninja -DPython_EXECUTABLE="$(command -v "$PYTHON")" >/dev/null
-cmake --build build
+echo "== pip install . (build in build/, tests ${BUILD_TESTS})"
+# (not -q: pip prints the build's output when it fails)
+"$PYTHON" -m pip install "${PIP_FLAGS[@]}" --no-build-isolation --no-deps \
+  -C build-dir=build -C cmake.define.NVDB_BUILD_TESTS="$BUILD_TESTS" .

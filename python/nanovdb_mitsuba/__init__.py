@@ -1,39 +1,95 @@
-"""Python helpers of nanovdb-mitsuba: find the plugins, frame a NanoVDB
-volume in a scene, render a user's file (see render.py).
+"""nanovdb-mitsuba: sparse NanoVDB volumes for Mitsuba 3.
 
-From a clone, after the build: `PYTHONPATH=python python3 -m nanovdb_mitsuba.render ...`
+    import mitsuba as mi
+    import nanovdb_mitsuba          # Mitsuba now finds nanovdbvolume and volpathlocal
+    mi.set_variant("llvm_ad_rgb")
+    vol = mi.load_dict({"type": "nanovdbvolume", "filename": "scenes/cloud.nvdb"})
+
+Importing the package puts the directory that holds plugins/nanovdbvolume.so
+and plugins/volpathlocal.so first in Mitsuba's file resolver, which is where
+Mitsuba looks plugins up (before or after mi.set_variant; threads started
+later inherit it). That directory is:
+- $NVDB_BUILD_DIR, when set (a build directory: plugins/, bin/);
+- the installed package itself (pip install .: nanovdb_mitsuba/plugins/);
+- otherwise, run from a clone (PYTHONPATH=python), the clone's build/.
+
+Also here: framed_scene() (scene.py: a volume framed and lit, as a scene
+dict), nanovdb-render (render.py) and the vdb2nvdb console script (tools.py).
+`python3 -m nanovdb_mitsuba` prints the plugin directory, for
+`mitsuba -a "$(python3 -m nanovdb_mitsuba)" scene.xml`.
 """
 import os
 import shutil
 
+__version__ = "0.3.0"
+
 _HERE = os.path.dirname(os.path.abspath(__file__))
+_PLUGINS = ("nanovdbvolume", "volpathlocal")
 
 
-def build_dir():
-    """The build directory holding plugins/ and bin/: $NVDB_BUILD_DIR, else
-    the clone's build/ (this package lives in <clone>/python/)."""
-    return os.path.abspath(os.environ.get("NVDB_BUILD_DIR") or
-                           os.path.join(_HERE, "..", "..", "build"))
+def plugin_root():
+    """The directory holding plugins/ (and bin/vdb2nvdb): $NVDB_BUILD_DIR,
+    else this package when installed, else the clone's build/."""
+    if os.environ.get("NVDB_BUILD_DIR"):
+        return os.path.abspath(os.environ["NVDB_BUILD_DIR"])
+    if os.path.exists(os.path.join(_HERE, "plugins", "nanovdbvolume.so")):
+        return _HERE
+    return os.path.abspath(os.path.join(_HERE, "..", "..", "build"))
 
 
-def setup(mi):
-    """Lets Mitsuba find nanovdbvolume and volpathlocal: prepends the build
-    directory to its file resolver (call after mi.set_variant)."""
-    d = build_dir()
-    if not os.path.exists(os.path.join(d, "plugins", "nanovdbvolume.so")):
-        raise RuntimeError(f"nanovdb_mitsuba: no plugins/nanovdbvolume.so in {d}: build the "
-                           "project first (README), or set NVDB_BUILD_DIR")
-    mi.file_resolver().prepend(d)
+# Kept under its old name: the clone's scripts and tests call build_dir()
+build_dir = plugin_root
+
+
+def setup(mi=None):
+    """Puts plugin_root() first in Mitsuba's file resolver (once). Called on
+    import; call it again after changing $NVDB_BUILD_DIR or the resolver."""
+    if mi is None:
+        import mitsuba as mi
+    d = plugin_root()
+    missing = [p for p in _PLUGINS if not os.path.exists(os.path.join(d, "plugins", p + ".so"))]
+    if missing:
+        raise RuntimeError(
+            f"nanovdb_mitsuba: no plugins/{missing[0]}.so in {d}: install the package "
+            "(pip install .) or build the clone (README), or set NVDB_BUILD_DIR")
+    resolver = mi.file_resolver()
+    if len(resolver) == 0 or str(resolver[0]) != d:
+        resolver.prepend(d)
+    return d
 
 
 def vdb2nvdb():
-    """The converter: $NVDB_VDB2NVDB, the build's bin/vdb2nvdb, or the one on PATH."""
-    for path in (os.environ.get("NVDB_VDB2NVDB"), os.path.join(build_dir(), "bin", "vdb2nvdb"),
-                 shutil.which("vdb2nvdb")):
-        if path and os.path.exists(path):
+    """The converter binary: $NVDB_VDB2NVDB, else bin/vdb2nvdb under
+    plugin_root(), else a vdb2nvdb on PATH that is not our console script."""
+    candidates = [os.environ.get("NVDB_VDB2NVDB"), os.path.join(plugin_root(), "bin", "vdb2nvdb")]
+    for path in candidates:
+        if path and os.path.isfile(path) and os.access(path, os.X_OK):
             return path
-    raise RuntimeError("nanovdb_mitsuba: vdb2nvdb not found (build the project, or set "
-                       "NVDB_VDB2NVDB)")
+    found = shutil.which("vdb2nvdb")
+    if found and not _is_console_script(found):
+        return found
+    raise RuntimeError(
+        f"nanovdb_mitsuba: vdb2nvdb not found in {os.path.join(plugin_root(), 'bin')} (it needs "
+        "OpenVDB 10 at build time: apt-get install libopenvdb-dev libboost-dev libtbb-dev "
+        "libimath-dev, then reinstall), nor as $NVDB_VDB2NVDB")
 
+
+def _is_console_script(path):
+    """pip's wrapper around tools.vdb2nvdb_main (a Python script), which
+    must not run itself"""
+    try:
+        with open(path, "rb") as f:
+            return f.read(2) == b"#!" and b"nanovdb_mitsuba" in f.read(4096)
+    except OSError:
+        return False
+
+
+try:
+    setup()
+except RuntimeError as e:
+    # A clone before its build: importing still works (scene helpers), and
+    # Mitsuba would only say "plugin not found" later, so say why now
+    import warnings
+    warnings.warn(str(e), RuntimeWarning, stacklevel=2)
 
 from .scene import framed_scene  # noqa: E402,F401

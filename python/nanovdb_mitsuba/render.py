@@ -1,6 +1,6 @@
 """nanovdb-render: a user's .vdb or .nvdb, correctly proportioned, in one command.
 
-    PYTHONPATH=python python3 -m nanovdb_mitsuba.render smoke.vdb -o smoke.png
+    nanovdb-render smoke.vdb -o smoke.png
         [--grid NAME] [--spp 64] [--res 256] [--variant llvm_ad_rgb]
         [--integrator volpathlocal] [--scale S] [--filter trilinear]
 
@@ -10,6 +10,8 @@ inside a null-BSDF box fitted to it, framed by a camera and lit by a sky and
 a sun (scene.py). The density scale defaults to a mean optical depth of
 about 8 across the box (from the plugin's per-node bounds), and is printed. The render runs in passes with a
 progress bar; the image is written as PNG (sRGB, 8 bit) and EXR (linear).
+`nanovdb-render` is the console script pip installs; from a clone without
+installing: PYTHONPATH=python python3 -m nanovdb_mitsuba.render ...
 """
 import argparse
 import os
