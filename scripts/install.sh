@@ -3,7 +3,8 @@
 # and installs it with pip (`pip install .`: the plugins, vdb2nvdb and
 # nanovdb-render), building in build/ so that a second run only rebuilds
 # what changed. Idempotent: packages already present are not fetched again.
-#   --no-tests: leave out the test programs (the quickstart needs none)
+#   --no-tests: leave out the test programs (the quickstart needs none), unless
+#               build/ already builds them
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD_TESTS=ON
@@ -61,6 +62,9 @@ then
   "$PYTHON" -m pip install -q "${PIP_FLAGS[@]}" "${PIP_PACKAGES[@]}"
 fi
 
+if grep -qs "^NVDB_BUILD_TESTS:BOOL=ON" build/CMakeCache.txt; then
+  BUILD_TESTS=ON  # keep a test build a test build (no flip-flopping of build/)
+fi
 echo "== pip install . (build in build/, tests ${BUILD_TESTS})"
 # (not -q: pip prints the build's output when it fails)
 "$PYTHON" -m pip install "${PIP_FLAGS[@]}" --no-build-isolation --no-deps \

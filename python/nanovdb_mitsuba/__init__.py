@@ -92,4 +92,4 @@ except RuntimeError as e:
     import warnings
     warnings.warn(str(e), RuntimeWarning, stacklevel=2)
 
-from .scene import framed_scene  # noqa: E402,F401
+from .scene import default_scale, enclosing_cube, framed_scene  # noqa: E402,F401

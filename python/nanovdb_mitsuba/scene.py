@@ -79,6 +79,16 @@ def camera(bbox, fov=35.0, direction=(1.0, 0.55, 1.3), fill=0.85):
     return dict(origin=origin, target=c, fov=fov, distance=hi, radius=r)
 
 
+def enclosing_cube(mi, volume, margin=1e-4):
+    """to_world of a "cube" shape ([-1, 1]^3) that encloses the volume's
+    world box (volume.bbox(): with use_grid_transform, the grid's world box)
+    with a relative margin, so that the medium inside it is not clipped"""
+    bb = volume.bbox()
+    centre = [0.5 * (bb.min[k] + bb.max[k]) for k in range(3)]
+    half = [max(0.5 * (bb.max[k] - bb.min[k]), 1e-6) * (1.0 + margin) for k in range(3)]
+    return mi.ScalarTransform4f().translate(centre).scale(half)
+
+
 def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
                  integrator="volpathlocal", albedo=0.9, filter_type="trilinear"):
     """(scene dict, info) for `filename` (.nvdb). `scale` None: default_scale().
@@ -92,8 +102,6 @@ def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
     if scale is None:
         scale = default_scale(volume)
     cam = camera(bb)
-    centre = [0.5 * (bb.min[k] + bb.max[k]) for k in range(3)]
-    half = [max(0.5 * (bb.max[k] - bb.min[k]), 1e-6) * 1.0001 for k in range(3)]
     T = mi.ScalarTransform4f
     scene = {
         "type": "scene",
@@ -111,7 +119,7 @@ def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
                 "irradiance": {"type": "rgb", "value": [6, 5.7, 5.1]}},
         "box": {
             "type": "cube",  # [-1, 1]^3, fitted to the volume's world box
-            "to_world": T().translate(centre).scale(half),
+            "to_world": enclosing_cube(mi, volume),
             "bsdf": {"type": "null"},
             "interior": {"type": "heterogeneous", "sigma_t": volume,
                          "albedo": {"type": "rgb", "value": [albedo] * 3}, "scale": scale},

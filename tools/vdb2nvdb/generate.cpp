@@ -143,6 +143,24 @@ FloatGrid::Ptr cloud(int h) {
     return grid;
 }
 
+/// The cloud with a colour: "density" as cloud(h), and "albedo" (vec3s) on
+/// the same active voxels and transform, from a cool blue at the bottom to a
+/// warm white at the top: an albedo grid beside a density grid.
+openvdb::GridPtrVec cloud_albedo(int h) {
+    FloatGrid::Ptr density = cloud(h);
+    auto albedo = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
+    albedo->setTransform(density->transform().copy());
+    albedo->tree().topologyUnion(density->tree());
+    albedo->tree().voxelizeActiveTiles();
+    for (auto it = albedo->beginValueOn(); it; ++it) {
+        const double t = std::clamp(0.5 + 0.5 * it.getCoord().y() / double(h), 0.0, 1.0);
+        it.setValue(openvdb::Vec3s(float(0.55 + 0.4 * t), float(0.65 + 0.25 * t),
+                                   float(0.95 - 0.25 * t)));
+    }
+    albedo->setName("albedo");
+    return { density, albedo };
+}
+
 /// A field of small frayed cloud puffs scattered through the index box
 /// [0, n)^3: 24 blobs of radius 0.04-0.09 n (deterministic positions), fbm
 /// noise on their edges and inside; density in (0, 1], 0 (inactive) between
@@ -243,6 +261,8 @@ std::vector<std::pair<std::string, std::string>> generate_cases() {
         { "sphere_ls_<R>", "the sphere level set with a radius of R voxels (voxel size 1/R), "
                            "R in 1..4096; as fog, its interior becomes tiles" },
         { "cloud_<N>", "the noisy cloud in an N^3 index box" },
+        { "cloud_albedo", "the cloud with a second grid, \"albedo\" (vec3s): blue at the "
+                          "bottom, warm white at the top" },
         { "cloudfield_<N>", "a sparse field of 24 cloud puffs in an N^3 index box (1-2 % occupied)" },
         { "multi", "five grids in one file: density (fog), vel (vec3s), ls_sphere (level set, "
                    "background 0.15), flags (int32), temperature (float, class unknown)" },
@@ -265,6 +285,8 @@ openvdb::GridPtrVec make_case(const std::string &name) {
         return { cloud(std::max(1, n / 2)) };
     if (name == "cloud")
         return { cloud(80) };
+    if (name == "cloud_albedo")
+        return cloud_albedo(80);
     if (name == "multi")
         return multi();
     std::string list;
