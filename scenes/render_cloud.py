@@ -64,12 +64,15 @@ def main():
     ap.add_argument("--integrator", default="volpathlocal", choices=["volpathlocal", "volpath"])
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--res", type=int, default=256)
-    ap.add_argument("--build", default=os.path.join(HERE, "..", "build"),
-                    help="directory holding plugins/nanovdbvolume.so and volpathlocal.so")
+    ap.add_argument("--build", default=None,
+                    help="a build directory holding plugins/nanovdbvolume.so and volpathlocal.so "
+                         "(default: where `import nanovdb_mitsuba` finds them)")
     args = ap.parse_args()
 
+    import nanovdb_mitsuba  # noqa: F401  (Mitsuba now finds the plugins)
     mi.set_variant(args.variant)
-    mi.file_resolver().prepend(os.path.abspath(args.build))
+    if args.build:
+        mi.file_resolver().prepend(os.path.abspath(args.build))
     scene = mi.load_dict(cloud_scene(os.path.abspath(args.volume), args.grid,
                                      args.filter, args.spp, args.res, args.integrator))
     t0 = time.time()

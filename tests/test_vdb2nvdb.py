@@ -585,24 +585,6 @@ def test25_shared_data_files(path, tmp_path):
         assert np.array_equal(eval_points(vol, pts), eval_points(dense, pts))
 
 
-# ---------------------------------------------------------------------------
-#  Installation
-# ---------------------------------------------------------------------------
+# Installation (pip install .: the binary inside the package, the console
+# script vdb2nvdb): tests/test_pip_install.py
 
-def test26_install_puts_vdb2nvdb_beside_python_scripts(tmp_path):
-    build = VDB2NVDB.parent.parent
-    cache = build / "CMakeCache.txt"
-    if not cache.exists():
-        pytest.skip(f"{VDB2NVDB} is not in a CMake build directory")
-    m = re.search(r"^NVDB_TOOLS_INSTALL_DIR:PATH=(.*)$", cache.read_text(), re.M)
-    assert m, "NVDB_TOOLS_INSTALL_DIR missing from the CMake cache"
-    scripts = sysconfig.get_path("scripts")
-    assert Path(m.group(1)) == Path(scripts)
-    env = dict(os.environ, DESTDIR=str(tmp_path))
-    subprocess.run(["cmake", "--install", str(build), "--component", "vdb2nvdb"],
-                   check=True, env=env,
-                   capture_output=True, text=True)
-    installed = tmp_path / Path(scripts).relative_to("/") / "vdb2nvdb"
-    assert installed.exists() and os.access(installed, os.X_OK)
-    assert "usage:" in subprocess.run([str(installed), "--help"], capture_output=True,
-                                      text=True).stdout

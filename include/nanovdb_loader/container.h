@@ -39,6 +39,8 @@ struct GridEntry {
 
 /// Human name of a NanoVDB GridType value ("float", "Vec3f", "Fp16", ...)
 std::string grid_type_name(uint32_t grid_type);
+/// "level set", "fog volume", ... for a NanoVDB GridClass value
+std::string grid_class_name(uint32_t grid_class);
 /// "float, Half, Fp4, Fp8, Fp16, FpN, Vec3f": the types a grid may have
 std::string supported_grid_types();
 

@@ -52,6 +52,17 @@ def convert(path, grid, tmpdir):
     return out
 
 
+def volume_properties(volume):
+    """The `name = value` lines of a nanovdbvolume's to_string() (grid,
+    grid_type, grid_class, dimensions, max, ...), as strings"""
+    props = {}
+    for line in str(volume).splitlines():
+        if line.startswith("  ") and not line.startswith("   ") and " = " in line:
+            k, v = line.strip().split(" = ", 1)
+            props[k] = v.rstrip(",").strip('"')
+    return props
+
+
 def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
                 integrator="volpathlocal", scale=None, filter_type="trilinear", passes=None,
                 quiet=False):
@@ -64,9 +75,38 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
     setup(mi)
     with tempfile.TemporaryDirectory() as tmp:
         nvdb = convert(path, grid, tmp) if path.lower().endswith(".vdb") else path
-        scene_dict, info = framed_scene(mi, nvdb, grid=grid if nvdb == path else "",
-                                        scale=scale, res=res, spp=spp,
-                                        integrator=integrator, filter_type=filter_type)
+        kw = dict(scale=scale, res=res, spp=spp, integrator=integrator, filter_type=filter_type)
+        scene_dict, info = framed_scene(mi, nvdb, grid=grid if nvdb == path else "", **kw)
+        props = volume_properties(info["volume"])
+        if nvdb == path and props.get("grid_class") == "level set":
+            # A .nvdb level set: signed distances, not a density. Made a fog
+            # volume as a .vdb's level set is (vdb2nvdb reads .nvdb too)
+            if not quiet:
+                print(f"{path}: grid \"{props.get('grid')}\" is a level set: rendering it as a "
+                      "fog volume (vdb2nvdb, into a temporary file)")
+            del scene_dict, info
+            level_set = props
+            nvdb = convert(path, props.get("grid"), tmp)
+            scene_dict, info = framed_scene(mi, nvdb, **kw)
+            props = volume_properties(info["volume"])
+            if props.get("max") == "0" and level_set.get("max") != "0":
+                # No inside: e.g. a "level set" whose background (the band's
+                # width) is 0. Its values as densities, negative ones as 0
+                print(f"{path}: the level set's fog volume is empty (background "
+                      f"{level_set.get('background')}: no inside to fill); rendering its values "
+                      "as densities instead, negative ones as 0")
+                del scene_dict, info
+                nvdb = path
+                scene_dict, info = framed_scene(mi, path, grid=level_set.get("grid"),
+                                                invalid_values="clamp", **kw)
+                props = volume_properties(info["volume"])
+                info["level_set_values"] = True
+        if not quiet and props.get("dimensions") == "[1, 1, 1]" and props.get("max") == "0":
+            print(f"{path}: grid \"{props.get('grid')}\" holds no active voxels and a zero "
+                  "background: the image shows only the lights")
+        if not quiet and props.get("grid_type") == "Vec3f":
+            print(f"{path}: grid \"{props.get('grid')}\" is a Vec3f grid: rendered as a "
+                  "colour extinction (one density per RGB channel); --grid picks another grid")
         if not quiet:
             bmin, bmax = info["bbox_min"], info["bbox_max"]
             print(f"{path}: world bbox [{', '.join(f'{v:g}' for v in bmin)}] .. "
@@ -92,6 +132,7 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
         bitmap.write(exr)
         bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True).write(out)
         info["seconds"] = time.perf_counter() - started
+        info["grid_class"] = props.get("grid_class")
         info.pop("volume", None)
         if not quiet:
             print(f"wrote {out} and {exr} ({res}x{res}, {spp} spp, {variant}, {integrator}) "
@@ -116,8 +157,15 @@ def main(argv=None):
     if not os.path.exists(a.input):
         raise SystemExit(f"nanovdb-render: \"{a.input}\": no such file")
     out = a.output or os.path.splitext(os.path.basename(a.input))[0] + ".png"
-    render_file(a.input, out, grid=a.grid, spp=a.spp, res=a.res, variant=a.variant,
-                integrator=a.integrator, scale=a.scale, filter_type=a.filter)
+    try:
+        render_file(a.input, out, grid=a.grid, spp=a.spp, res=a.res, variant=a.variant,
+                    integrator=a.integrator, scale=a.scale, filter_type=a.filter)
+    except RuntimeError as e:
+        # Mitsuba's messages already name the file and the problem; drop
+        # its source location prefix ("[parser.cpp:1718] ...")
+        msg = str(e)
+        inner = msg.rsplit("[NanoVDBVolume] ", 1)[-1]
+        raise SystemExit(f"nanovdb-render: {inner.strip()}")
 
 
 if __name__ == "__main__":

@@ -90,11 +90,12 @@ def enclosing_cube(mi, volume, margin=1e-4):
 
 
 def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
-                 integrator="volpathlocal", albedo=0.9, filter_type="trilinear"):
+                 integrator="volpathlocal", albedo=0.9, filter_type="trilinear",
+                 invalid_values="error"):
     """(scene dict, info) for `filename` (.nvdb). `scale` None: default_scale().
     info holds the volume's world bbox, the camera and the scale used."""
     vdict = {"type": "nanovdbvolume", "filename": str(filename), "use_grid_transform": True,
-             "filter_type": filter_type}
+             "filter_type": filter_type, "invalid_values": invalid_values}
     if grid:
         vdict["grid"] = grid
     volume = mi.load_dict(vdict)

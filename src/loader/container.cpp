@@ -334,6 +334,15 @@ std::vector<GridEntry> parse_raw(const std::string &path, File &f) {
 
 /// Human name of a NanoVDB GridType value (32.6+ numbering, a superset of
 /// the 32.4 table; the names of 32.4's toStr, with 32.x's Fp4... spelling).
+std::string grid_class_name(uint32_t grid_class) {
+    // NanoVDB's GridClass (PNANOVDB_GRID_CLASS_*)
+    static const char *names[] = { "unknown", "level set", "fog volume", "staggered",
+                                   "point index", "point data", "topology", "voxel volume",
+                                   "index grid", "tensor grid" };
+    constexpr uint32_t n = uint32_t(sizeof(names) / sizeof(names[0]));
+    return grid_class < n ? names[grid_class] : "unknown (" + std::to_string(grid_class) + ")";
+}
+
 std::string grid_type_name(uint32_t grid_type) {
     static const char *names[] = {
         "unknown",  "float",     "double",      "int16",      "int32",   "int64",

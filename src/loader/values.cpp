@@ -365,7 +365,12 @@ std::vector<std::string> apply_value_policy(ValidatedGrid &grid, const std::stri
              std::to_string(scan.negative_count) + " negative values (first: " +
              describe_location(scan.first_negative) +
              "); a negative density makes no physical sense. Set invalid_values=\"clamp\" "
-             "to replace them by 0." };
+             "to replace them by 0." +
+             (grid.summary().grid_class == 1
+                  ? std::string(" The grid is a level set (signed distances, negative inside), "
+                                "not a density: make it a fog volume with `vdb2nvdb " + path +
+                                " fog.nvdb` (nanovdb-render does that itself).")
+                  : std::string()) };
 }
 
 } // namespace nanovdb_loader

@@ -303,6 +303,7 @@ public:
             << "  filename = \"" << m_filename << "\"," << std::endl
             << "  grid = \"" << m_grid_name << "\"," << std::endl
             << "  grid_type = " << nanovdb_loader::grid_type_name(m_grid_type) << "," << std::endl
+            << "  grid_class = " << nanovdb_loader::grid_class_name(m_grid_class) << "," << std::endl
             << "  filter_type = " << (m_nearest ? "nearest" : "trilinear") << "," << std::endl
             << "  use_grid_transform = " << m_use_grid_transform << "," << std::endl
             << "  to_local = " << string::indent(m_to_local, 13) << "," << std::endl
@@ -705,6 +706,7 @@ private:
             const loader::GridEntry &entry = loader::select_grid(m_filename, grids, selector);
             m_grid_name = entry.name;
             m_grid_type = entry.grid_type;
+            m_grid_class = entry.grid_class;
             const bool vec3 = m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
             // Spectral variants turn colours into sRGB-model coefficients
             // and a scale, as gridvolume does (unless raw)
@@ -978,6 +980,7 @@ private:
     bool m_raw = false;                // Vec3f: no spectral conversion
     ScalarFloat m_background_host = 0.f;
     uint32_t m_grid_type = 0;     // NanoVDB's GridType (layout.h)
+    uint32_t m_grid_class = 0;    // NanoVDB's GridClass (level set, fog volume, ...)
     size_t m_grid_bytes = 0;      // the grid's bytes
     size_t m_backend_bytes = 0;   // what the backend holds for it (padded to 64 B)
     size_t m_majorant_bytes = 0;  // the per-node bounds beside it

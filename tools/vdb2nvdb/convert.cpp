@@ -30,6 +30,7 @@
 #include <openvdb/tools/LevelSetUtil.h>
 #include <nanovdb/util/GridChecksum.h>
 #include <nanovdb/util/GridValidator.h>
+#include <nanovdb/util/NanoToOpenVDB.h>
 #include <nanovdb/util/OpenToNanoVDB.h>
 
 namespace vdb2nvdb {
@@ -274,6 +275,46 @@ openvdb::GridPtrVec read_vdb(const std::string &path) {
     }
 }
 
+/// A .nvdb file's grids as OpenVDB grids, through NanoVDB's own reader and
+/// nanoToOpenVDB: a NanoVDB level set can then become a fog volume as an
+/// OpenVDB one does (nanovdb-render does that with .nvdb level sets). Grids
+/// that NanoVDB cannot turn back into OpenVDB grids (index grids, points)
+/// are skipped with a note.
+openvdb::GridPtrVec read_nvdb(const std::string &path) {
+    std::error_code ec;
+    if (!fs::exists(path, ec))
+        throw Error(dq(path) + ": no such file");
+    std::vector<nanovdb::GridHandle<nanovdb::HostBuffer>> handles;
+    try {
+        handles = nanovdb::io::readGrids<nanovdb::HostBuffer>(path);
+    } catch (const std::exception &e) {
+        throw Error(dq(path) + ": cannot read as a NanoVDB file (NanoVDB " +
+                    std::to_string(NANOVDB_MAJOR_VERSION_NUMBER) + "." +
+                    std::to_string(NANOVDB_MINOR_VERSION_NUMBER) + "'s reader): " + e.what());
+    }
+    openvdb::GridPtrVec grids;
+    for (size_t i = 0; i < handles.size(); ++i) {
+        const nanovdb::GridMetaData *m = handles[i].gridMetaData();
+        const std::string name = m ? m->shortGridName() : std::to_string(i);
+        try {
+            grids.push_back(nanovdb::nanoToOpenVDB(handles[i]));
+        } catch (const std::exception &e) {
+            std::string type = m ? nanovdb::toStr(m->gridType()) : "?";
+            if (type == "End") // a type newer than this NanoVDB (OnIndex, ...)
+                type = "grid type " + std::to_string(uint32_t(m->gridType()));
+            note(dq(path) + ": grid " + dq(name) + " (" + type + "): not read: " + e.what());
+        }
+    }
+    if (grids.empty())
+        throw Error(dq(path) + ": no grid that NanoVDB can read back into OpenVDB");
+    return grids;
+}
+
+openvdb::GridPtrVec read_input(const std::string &path) {
+    const bool nvdb = path.size() >= 5 && path.compare(path.size() - 5, 5, ".nvdb") == 0;
+    return nvdb ? read_nvdb(path) : read_vdb(path);
+}
+
 /// "[(x, y, z), (x, y, z)]" of a world-space box
 std::string fmt_world_box(const openvdb::math::BBox<openvdb::Vec3d> &b) {
     char s[200];
@@ -345,7 +386,7 @@ std::string grid_details(const openvdb::GridBase &g, const CoordBBox &box) {
 }
 
 int list_file(const std::string &in) {
-    openvdb::GridPtrVec grids = read_vdb(in);
+    openvdb::GridPtrVec grids = read_input(in);
     std::printf("%s: %zu grid%s\n", in.c_str(), grids.size(), grids.size() == 1 ? "" : "s");
     std::printf("  %-3s %-20s %-12s %-11s %15s  %-44s %s\n", "#", "name", "type", "class",
                 "active voxels", "active index bbox [min, max]", "voxel size");
@@ -1121,11 +1162,11 @@ int convert_grids(openvdb::GridPtrVec all, const std::string &label, const std::
 int convert_file(const std::string &in, const std::string &out, const Options &opts) {
     // Fail on an unwritable output before reading a large input
     { TempFile probe(out); }
-    return convert_grids(read_vdb(in), dq(in), out, opts);
+    return convert_grids(read_input(in), dq(in), out, opts);
 }
 
 int verify_only(const std::string &in, const std::string &nvdb, const Options &opts) {
-    openvdb::GridPtrVec all = read_vdb(in);
+    openvdb::GridPtrVec all = read_input(in);
     std::vector<Prepared> grids = select_and_prepare(all, dq(in), opts);
     std::vector<nanovdb::io::GridMetaData> meta;
     try {
