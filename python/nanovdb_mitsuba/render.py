@@ -48,7 +48,11 @@ def convert(path, grid, tmpdir):
         cmd += ["--grid", grid]
     r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if r.returncode != 0:
-        raise SystemExit(f"nanovdb-render: {r.stdout.strip()}")
+        # vdb2nvdb's last line is its error; the notes before it go first
+        lines = r.stdout.strip().splitlines() or [f"vdb2nvdb failed ({r.returncode})"]
+        for note in lines[:-1]:
+            print(note, file=sys.stderr)
+        raise SystemExit(f"nanovdb-render: {lines[-1]}")
     return out
 
 
