@@ -17,6 +17,7 @@ done
 
 APT_PACKAGES=(
   cmake ninja-build g++ pkg-config
+  python3-venv        # tests/test_pip_install.py: a fresh virtual environment (ensurepip)
   libnanovdb-dev      # NanoVDB 32.4 headers incl. PNanoVDB.h (the reference we translate)
   libopenvdb-dev libboost-dev libtbb-dev libimath-dev  # OpenVDB 10: test grids, vdb2nvdb
   libblosc-dev zlib1g-dev   # .nvdb codecs

@@ -143,7 +143,7 @@ def test02_list_shows_grids_in_file_order(gen):
                      text)
 
 
-def test02b_list_shows_world_bbox_transform_and_values(gen):
+def test02b_list_shows_world_bbox_transform_and_values(gen, tmp_path):
     # The generated cloud: index -> world is diag(0.01, 0.01, 0.0125) + (0.2, 1.0, -0.3)
     p = run("--list", gen("cloud"))
     lines = p.stdout.splitlines()
@@ -163,6 +163,17 @@ def test02b_list_shows_world_bbox_transform_and_values(gen):
     # A vec3s grid: the range of its largest channel
     p = run("--list", gen("multi"))
     assert "active values' largest channel in" in p.stdout
+    # --stats shows the same three lines for the grid as written
+    stats = run(gen("cloud"), tmp_path / "c.nvdb", "--stats").stdout
+    for want in (world.split("world bbox")[1].strip(), xf.split("transform")[1].strip(),
+                 values.split("active values")[1].strip()):
+        assert want in stats, (want, stats)
+    # ... and for a level set: those of the fog volume it became
+    fog = run(gen("sphere_ls"), tmp_path / "s.nvdb", "--stats").stdout
+    assert re.search(r"active values\s+in \[\S+, 1\]", fog), fog
+    # and .nvdb input (NanoVDB's reader): the same listing as the .vdb's
+    nv = run("--list", tmp_path / "c.nvdb").stdout
+    assert world in nv.splitlines() and xf in nv.splitlines(), nv
 
 
 # ---------------------------------------------------------------------------

@@ -552,6 +552,7 @@ struct GridReport {
     uint32_t tiles[3] = { 0, 0, 0 };      // active tiles: lower, upper, root
     uint64_t grid_bytes = 0, leaf_bytes = 0;
     double convert_ms = 0;
+    std::string details; // grid_details(): world bbox, transform, value range
 };
 
 template <typename BuildT>
@@ -972,6 +973,19 @@ void print_stats(const std::vector<GridReport> &reports, uint64_t file_size,
                         fmt_coord(r.bbox.max()).c_str());
         std::printf("    %-34s %d x %d x %d\n", "voxel dimensions", d.max.x() - d.min.x() + 1,
                     d.max.y() - d.min.y() + 1, d.max.z() - d.min.z() + 1);
+        // world bbox, transform, value range: the lines of --list, aligned
+        std::istringstream lines(r.details);
+        for (std::string l; std::getline(lines, l);) {
+            l.erase(0, l.find_first_not_of(' '));
+            const size_t sp = l.find_first_of(" :");
+            std::string key = l.substr(0, sp), rest = sp == std::string::npos ? "" : l.substr(sp);
+            if (l.rfind("world bbox", 0) == 0) { key = "world bbox"; rest = l.substr(10); }
+            else if (l.rfind("active values' largest channel", 0) == 0) {
+                key = "active values' largest channel"; rest = l.substr(key.size());
+            } else if (l.rfind("active values", 0) == 0) { key = "active values"; rest = l.substr(13); }
+            rest.erase(0, rest.find_first_not_of(" :"));
+            std::printf("    %-34s %s\n", key.c_str(), rest.c_str());
+        }
         std::printf("    %-34s %s / %s / %s\n", "nodes upper / lower / leaf",
                     fmt_count(r.nodes[2]).c_str(), fmt_count(r.nodes[1]).c_str(),
                     fmt_count(r.nodes[0]).c_str());
@@ -1078,6 +1092,8 @@ int convert_grids(openvdb::GridPtrVec all, const std::string &label, const std::
             }
             GridReport r = report_of(h);
             r.name = p.name;
+            if (opts.stats) // as written: after a level set's fog conversion
+                r.details = grid_details(p.base(), p.base().evalActiveVoxelBoundingBox());
             r.cls = class_name(p.base().getGridClass());
             try {
                 nanovdb::io::writeGrid(os, h, opts.codec);
