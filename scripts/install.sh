@@ -67,6 +67,7 @@ if grep -qs "^NVDB_BUILD_TESTS:BOOL=ON" build/CMakeCache.txt; then
   BUILD_TESTS=ON  # keep a test build a test build (no flip-flopping of build/)
 fi
 echo "== pip install . (build in build/, tests ${BUILD_TESTS})"
-# (not -q: pip prints the build's output when it fails)
+# (not -q: pip prints the build's output when it fails; --config-settings, not -C: Debian 12's pip 23.0 lacks -C)
 "$PYTHON" -m pip install "${PIP_FLAGS[@]}" --no-build-isolation --no-deps \
-  -C build-dir=build -C cmake.define.NVDB_BUILD_TESTS="$BUILD_TESTS" .
+  --config-settings build-dir=build \
+  --config-settings cmake.define.NVDB_BUILD_TESTS="$BUILD_TESTS" .

@@ -2,7 +2,7 @@
 
 The environment sees the system's site-packages (mitsuba, drjit, numpy and
 the build requirements: no download), and the build reuses the clone's
-build directory (-C build-dir, as scripts/install.sh builds), so that only
+build directory (--config-settings build-dir, as scripts/install.sh builds), so that only
 the configure step, the packaging and the installation run here, not the
 compilation. Then, from a directory outside the clone and with no
 PYTHONPATH or NVDB_BUILD_DIR:
@@ -64,7 +64,8 @@ def test_pip_install_fresh_venv(venv, tmp_path):
     py = venv / "bin" / "python"
     # pip install . (the build requirements come from the system's site-packages)
     _run([py, "-m", "pip", "install", "--disable-pip-version-check", "--no-build-isolation",
-          "--no-deps", "-C", f"build-dir={BUILD}", "-C", "cmake.define.NVDB_BUILD_TESTS=ON", "."],
+          "--no-deps", "--config-settings", f"build-dir={BUILD}",
+          "--config-settings", "cmake.define.NVDB_BUILD_TESTS=ON", "."],
          cwd=ROOT, env=env)
     site = _site_packages(venv)
     pkg = site / "nanovdb_mitsuba"
