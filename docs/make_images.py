@@ -30,16 +30,22 @@ def render_shared(shared):
                 continue
             stem = os.path.splitext(name)[0]
             out = os.path.join(tmp, stem + ".png")
-            cmd = ["nanovdb-render", os.path.join(shared, name), "-o", out]
+            src = os.path.relpath(os.path.join(shared, name), ROOT)
+            cmd = ["nanovdb-render", src, "-o", out]
             t0 = time.perf_counter()
-            p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                               cwd=ROOT)
             seconds = time.perf_counter() - t0
             said = [l.split("\r")[-1] for l in p.stdout.splitlines() if l.strip()]
             if p.returncode == 0:
                 shutil.copy(out, os.path.join(IMAGES, "shared", stem + ".png"))
                 scale = next((l.split("density scale ")[1].split(" ")[0].rstrip(";")
                               for l in said if "density scale" in l), "?")
-                rows.append((name, f"![](shared/{stem}.png)", f"{seconds:.1f} s", f"scale {scale}"))
+                # what the command said about the grid, beyond the box and scale
+                notes = [l.split(": ", 1)[1] for l in said
+                         if l.startswith(src + ":") and "world bbox" not in l]
+                rows.append((name, f"![](shared/{stem}.png)", f"{seconds:.1f} s",
+                             "; ".join([f"scale {scale}"] + notes)))
             else:
                 rows.append((name, "not rendered", f"{seconds:.1f} s", said[-1] if said else ""))
             print(f"{name}: {rows[-1][2]}, {rows[-1][3]}", flush=True)
@@ -52,7 +58,7 @@ def render_shared(shared):
                 "conversion, loading, Dr.Jit's kernel compilation and the render, on a\n"
                 "2-core machine. Files without a float-like grid to render are listed with\n"
                 "the command's message.\n\n"
-                "| file | image | time | |\n|---|---|---|---|\n")
+                "| file | image | time | what the command said |\n|---|---|---|---|\n")
         for r in rows:
             f.write("| " + " | ".join(x.replace("|", "\\|") for x in r) + " |\n")
 
