@@ -11,6 +11,7 @@
 """
 import argparse
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -24,6 +25,8 @@ IMAGES = os.path.join(HERE, "images")
 
 def render_shared(shared):
     rows = []
+    for old in os.listdir(os.path.join(IMAGES, "shared")):  # no stale pictures
+        os.remove(os.path.join(IMAGES, "shared", old))
     with tempfile.TemporaryDirectory() as tmp:
         for name in sorted(os.listdir(shared)):
             if not name.endswith((".vdb", ".nvdb")):
@@ -36,7 +39,8 @@ def render_shared(shared):
             p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                cwd=ROOT)
             seconds = time.perf_counter() - t0
-            said = [l.split("\r")[-1] for l in p.stdout.splitlines() if l.strip()]
+            said = [re.sub(r"\x1b\[[0-9;]*m", "", l.split("\r")[-1])  # no ANSI colours
+                    for l in p.stdout.splitlines() if l.strip()]
             if p.returncode == 0:
                 shutil.copy(out, os.path.join(IMAGES, "shared", stem + ".png"))
                 scale = next((l.split("density scale ")[1].split(" ")[0].rstrip(";")

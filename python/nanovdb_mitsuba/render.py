@@ -108,9 +108,16 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
         if not quiet and props.get("dimensions") == "[1, 1, 1]" and props.get("max") == "0":
             print(f"{path}: grid \"{props.get('grid')}\" holds no active voxels and a zero "
                   "background: the image shows only the lights")
-        if not quiet and props.get("grid_type") == "Vec3f":
-            print(f"{path}: grid \"{props.get('grid')}\" is a Vec3f grid: rendered as a "
-                  "colour extinction (one density per RGB channel); --grid picks another grid")
+        if props.get("grid_type") == "Vec3f":
+            if not grid:  # the file's first renderable grid, not the user's choice
+                raise SystemExit(
+                    f"nanovdb-render: {path}: its first grid, \"{props.get('grid')}\", is a Vec3f "
+                    "grid (a colour or a vector), not a density; choose a scalar grid with "
+                    f"--grid, or --grid {props.get('grid') or 0} to render this one as a colour "
+                    "extinction (one density per RGB channel)")
+            if not quiet:
+                print(f"{path}: grid \"{props.get('grid')}\" is a Vec3f grid: rendered as a "
+                      "colour extinction (one density per RGB channel)")
         if not quiet:
             bmin, bmax = info["bbox_min"], info["bbox_max"]
             print(f"{path}: world bbox [{', '.join(f'{v:g}' for v in bmin)}] .. "
