@@ -150,3 +150,13 @@ mi.util.write_bitmap({str(out)!r}, image)
     print("ran:\n  " + "\n  ".join(ran))
     print("not run:\n  " + "\n  ".join(not_run))
     assert len(ran) >= 8
+
+
+def test_pictures_exist():
+    """Every picture README.md and docs/images/README.md show is in the
+    repository (docs/make_images.py makes them)"""
+    for md in (README, ROOT / "docs" / "images" / "README.md"):
+        links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md.read_text())
+        assert links, f"{md}: no pictures found"
+        missing = [l for l in links if not (md.parent / l).is_file()]
+        assert not missing, f"{md}: missing pictures {missing}"
