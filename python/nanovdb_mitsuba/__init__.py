@@ -21,7 +21,7 @@ dict), nanovdb-render (render.py) and the vdb2nvdb console script (tools.py).
 import os
 import shutil
 
-__version__ = "0.3.0"
+__version__ = "0.3.0"  # the package's version (pyproject.toml reads it here)
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
 _PLUGINS = ("nanovdbvolume", "volpathlocal")
@@ -35,10 +35,6 @@ def plugin_root():
     if os.path.exists(os.path.join(_HERE, "plugins", "nanovdbvolume.so")):
         return _HERE
     return os.path.abspath(os.path.join(_HERE, "..", "..", "build"))
-
-
-# Kept under its old name: the clone's scripts and tests call build_dir()
-build_dir = plugin_root
 
 
 def setup(mi=None):
