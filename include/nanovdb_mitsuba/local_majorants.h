@@ -49,6 +49,11 @@ public:
      */
     virtual ScalarFloat local_majorant_ratio() const = 0;
 
+    /// The largest bound a segment of the walk can have (the volume's max()):
+    /// with the medium's scale, it bounds the number of tentative collisions
+    /// a tracking loop can meet along a ray (the integrator's loop bounds)
+    virtual ScalarFloat majorant_bound() const = 0;
+
     /**
      * The ray in index space. `thin_depth` (per unit of eval_1) sets which
      * nodes are crossed whole: those whose bound M makes the optical depth

@@ -11,6 +11,7 @@
 #include <mitsuba/render/shape.h>
 
 #include <nanovdb_mitsuba/local_majorants.h>
+#include <nanovdb_mitsuba/plugin_variants.h>
 
 #include <atomic>
 #include <mutex>
@@ -128,12 +129,31 @@ public:
         m_max_ratio = props.get<ScalarFloat>("max_majorant_ratio", 0.5f);
         if (!(m_max_ratio >= 0.f && m_max_ratio <= 1.f))
             Throw("volpathlocal: max_majorant_ratio must be in [0, 1], got %f", m_max_ratio);
+        if constexpr (dr::is_jit_v<Float>)
+            m_trips = dr::zeros<UInt32>(LoopCount);
     }
 
     TensorXf render(Scene *scene, Sensor *sensor, UInt32 seed = 0, uint32_t spp = 0,
                     bool develop = true, bool evaluate = true) override {
+        if (trip_counts_ready()) // trips of earlier renders not reported yet
+            report_trips();
         prepare(scene, true);
-        return Base::render(scene, sensor, seed, spp, develop, evaluate);
+        TensorXf image = Base::render(scene, sensor, seed, spp, develop, evaluate);
+        // (a JIT image not evaluated yet: its trips are reported by the next
+        // render(), to_string() or traverse(), so as not to evaluate it here)
+        if (evaluate || trip_counts_ready())
+            report_trips();
+        return image;
+    }
+
+    void traverse(TraversalCallback *cb) override {
+        Base::traverse(cb);
+        // How many lanes the loop bounds stopped so far (see LoopBound; per
+        // loop in to_string()): 0 unless something is wrong
+        m_trip_total_host = 0;
+        for (uint32_t n : trip_counts())
+            m_trip_total_host += n;
+        cb->put("loop_bound_trips", m_trip_total_host, ParamFlags::NonDifferentiable);
     }
 
     // =====================================================================
@@ -169,10 +189,12 @@ public:
             Interaction3f last_scatter_event;
             Float last_scatter_direction_pdf;
             Mask needs_intersection, specular_chain, valid_ray;
+            UInt32 stalls, steps; ///< the loop bound (see LoopBound)
+            UInt32 tripped;       ///< bit i: loop bound i stopped this path
             Sampler *sampler;
             DRJIT_STRUCT(PathState, active, depth, ray, throughput, result, si, mei, medium, eta,
                          last_scatter_event, last_scatter_direction_pdf, needs_intersection,
-                         specular_chain, valid_ray, sampler)
+                         specular_chain, valid_ray, stalls, steps, tripped, sampler)
         } ps = { active,
                  UInt32(0),
                  Ray3f(ray_),
@@ -187,35 +209,75 @@ public:
                  Mask(true),
                  Mask(active && !m_hide_emitters),
                  valid_ray,
+                 UInt32(0),
+                 UInt32(0),
+                 UInt32(0),
                  sampler };
 
         dr::tie(ps) = dr::while_loop(
             dr::make_tuple(ps), [](const PathState &ps) { return ps.active; },
-            [this, scene, channel](PathState &ps) { path_step(scene, channel, ps); },
+            [this, scene, channel](PathState &ps) {
+                Ray3f before = ps.ray;
+                UInt32 depth_before = ps.depth;
+                path_step(scene, channel, ps);
+                Mask moved = ps.depth != depth_before || dr::any(ps.ray.o != before.o) ||
+                             dr::any(ps.ray.d != before.d);
+                bound_loop(PathLoop, moved, ps.active, ps.stalls, ps.steps, ps.tripped);
+            },
             "volpathlocal: path");
+        record_trips(ps.tripped, active);
         return { ps.result, ps.valid_ray };
     }
 
     std::string to_string() const override {
+        report_trips();
+        std::vector<uint32_t> trips = trip_counts();
+        std::string trip_list;
+        for (uint32_t i = 0; i < LoopCount; ++i)
+            trip_list += tfm::format("%s%s: %u", i ? ", " : "", kLoopNames[i], trips[i]);
         return tfm::format("VolumetricPathLocalMajorants[\n"
                            "  max_depth = %i,\n"
                            "  rr_depth = %i,\n"
                            "  coarse_optical_depth = %f,\n"
                            "  max_majorant_ratio = %f,\n"
-                           "  tracked media = %zu\n"
+                           "  tracked media = %zu,\n"
+                           "  loop bound trips = [%s]\n"
                            "]",
                            m_max_depth, m_rr_depth, m_coarse_depth, m_max_ratio,
-                           m_tracked.size());
+                           m_tracked.size(), trip_list);
     }
 
     MI_DECLARE_CLASS(VolumetricPathLocalMajorants)
 
 private:
+    /**
+     * Each loop of this integrator stops a lane after more iterations than a
+     * valid ray can take, and counts it; render() warns, and to_string() and
+     * traverse() ("loop_bound_trips") show the counts. A trip means a bug or
+     * an input outside what the integrator supports; the lane then ends as
+     * if it had left the medium (or the path had been absorbed), so the
+     * image is finite but biased there.
+     *  - path, shadow ray: kMaxStalls iterations in a row in which the path
+     *    neither scattered nor moved (every valid iteration does one of the
+     *    two, or ends the path), or kMaxLoopSteps in all;
+     *  - walk: a flight's steps beyond twice the cell faces its segment can
+     *    cross (begin_flight());
+     *  - delta, ratio tracking: tentative collisions beyond the Poisson tail
+     *    of the global majorant's optical depth (begin_flight()).
+     */
+    enum LoopBound : uint32_t { PathLoop = 0, ShadowLoop, WalkLoop, DeltaLoop, RatioLoop,
+                                LoopCount };
+    static constexpr const char *kLoopNames[LoopCount] = { "path", "shadow ray", "walk",
+                                                           "delta tracking", "ratio tracking" };
+    static constexpr uint32_t kMaxStalls = 16;
+    static constexpr uint32_t kMaxLoopSteps = 1u << 24;
+
     /// A heterogeneous medium whose sigma_t offers local majorants
     struct Tracked {
         const Medium *medium;
         const Majorants *volume;
         ScalarFloat scale;
+        ScalarFloat max_majorant; ///< scale x the largest segment bound
     };
 
     /// Reads a medium's "sigma_t" and "scale" (what heterogeneous exposes)
@@ -277,7 +339,7 @@ private:
                     v->local_majorant_ratio(), m_max_ratio);
                 continue;
             }
-            tracked.push_back({ m, v, p.scale });
+            tracked.push_back({ m, v, p.scale, p.scale * v->majorant_bound() });
         }
         Log(Debug, "volpathlocal: %zu of %zu media tracked through local majorants",
             tracked.size(), media.size());
@@ -326,7 +388,8 @@ private:
                 if (dr::none_or<false>(in_k))
                     continue; // (scalar variants: not this medium)
                 tracked |= in_k;
-                auto [real, mei_k, weight] = track_collision(k, ray, si.t, sampler, in_k);
+                auto [real, mei_k, weight, tripped] = track_collision(k, ray, si.t, sampler, in_k);
+                ps.tripped |= tripped;
                 dr::masked(mei, in_k) = mei_k;
                 dr::masked(ps.throughput, real) *= weight;
                 act_medium_scatter |= real;
@@ -365,6 +428,10 @@ private:
                 dr::masked(ps.throughput, real_grey) *= mei_o.sigma_s / mei_o.sigma_t;
                 dr::masked(mei, other) = mei_o;
             }
+            // volpath: a lane that left its medium is done with it (without
+            // this, a lane whose ray starts outside its medium's box and meets
+            // no surface would stay active, unchanged, for ever)
+            active_medium &= !escaped_medium;
             dr::masked(ps.depth, act_medium_scatter) += 1;
             dr::masked(ps.last_scatter_event, act_medium_scatter) = mei;
         }
@@ -390,8 +457,8 @@ private:
 
             Mask active_e = act_medium_scatter && sample_emitters;
             if (dr::any_or<true>(active_e)) {
-                auto [emitted, ds] =
-                    sample_emitter(mei, scene, sampler, ps.medium, channel, active_e);
+                auto [emitted, ds] = sample_emitter(mei, scene, sampler, ps.medium, channel,
+                                                    ps.tripped, active_e);
                 auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, ds.d, active_e);
                 dr::masked(ps.result, active_e) +=
                     ps.throughput * phase_val * emitted *
@@ -455,8 +522,8 @@ private:
             Mask active_e = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) &&
                             (ps.depth + 1 < (uint32_t) m_max_depth);
             if (dr::any_or<true>(active_e)) {
-                auto [emitted, ds] =
-                    sample_emitter(si, scene, sampler, ps.medium, channel, active_e);
+                auto [emitted, ds] = sample_emitter(si, scene, sampler, ps.medium, channel,
+                                                    ps.tripped, active_e);
                 Vector3f wo = si.to_local(ds.d);
                 Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e);
                 bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi);
@@ -496,7 +563,7 @@ private:
     template <typename Interaction>
     std::tuple<Spectrum, DirectionSample3f>
     sample_emitter(const Interaction &ref, const Scene *scene, Sampler *sampler,
-                   MediumPtr medium, const UInt32 &channel, Mask active) const {
+                   MediumPtr medium, const UInt32 &channel, UInt32 &tripped, Mask active) const {
         auto [ds, emitter_val] =
             scene->sample_emitter_direction(ref, sampler->next_2d(active), false, active);
         dr::masked(emitter_val, ds.pdf == 0.f) = 0.f;
@@ -518,18 +585,24 @@ private:
             MediumPtr medium;
             SurfaceInteraction3f si;
             Spectrum transmittance;
+            UInt32 stalls, steps, tripped; ///< the loop bound (see LoopBound)
             Sampler *sampler;
             DRJIT_STRUCT(ShadowState, active, ray, total_dist, needs_intersection, medium, si,
-                         transmittance, sampler)
+                         transmittance, stalls, steps, tripped, sampler)
         } ss = { active, ray, Float(0.f), Mask(true), medium,
-                 dr::zeros<SurfaceInteraction3f>(), Spectrum(1.f), sampler };
+                 dr::zeros<SurfaceInteraction3f>(), Spectrum(1.f), UInt32(0), UInt32(0),
+                 UInt32(0), sampler };
 
         dr::tie(ss) = dr::while_loop(
             dr::make_tuple(ss), [](const ShadowState &ss) { return dr::detach(ss.active); },
             [this, scene, channel, max_dist, ds = ds](ShadowState &ss) {
+                Point3f before = ss.ray.o;
                 shadow_step(scene, channel, max_dist, ds.dist, ss);
+                bound_loop(ShadowLoop, dr::any(ss.ray.o != before), ss.active, ss.stalls,
+                           ss.steps, ss.tripped);
             },
             "volpathlocal: shadow ray");
+        dr::masked(tripped, active) |= ss.tripped;
         return { ss.transmittance * emitter_val, ds };
     }
 
@@ -564,9 +637,10 @@ private:
                 if (dr::none_or<false>(in_k))
                     continue;
                 tracked |= in_k;
-                UnpolarizedSpectrum tr = track_transmittance(
-                    k, ray, dr::minimum(si.t, remaining), sampler, in_k);
+                auto [tr, tripped] = track_transmittance(k, ray, dr::minimum(si.t, remaining),
+                                                         sampler, in_k);
                 dr::masked(ss.transmittance, in_k) *= tr;
+                ss.tripped |= tripped;
             }
             escaped_medium |= tracked;
 
@@ -670,6 +744,7 @@ private:
         Mask real;                    ///< a real collision at mei (else none before tmax)
         MediumInteraction3f mei;
         UnpolarizedSpectrum weight;   ///< the path throughput's factor
+        UInt32 tripped;               ///< loop bounds that stopped the flight (bits)
     };
 
     /// A flight through a tracked medium: the walk, the position t along
@@ -679,7 +754,11 @@ private:
         Mask searching; ///< inside next_collision(): not yet at a collision
         Walk walk;
         Float t, tau;
-        DRJIT_STRUCT(Flight, alive, searching, walk, t, tau)
+        UInt32 steps, collisions;          ///< walk steps, tentative collisions so far
+        UInt32 max_steps, max_collisions;  ///< their bounds (see LoopBound)
+        UInt32 tripped;                    ///< the bounds that stopped it (bits)
+        DRJIT_STRUCT(Flight, alive, searching, walk, t, tau, steps, collisions, max_steps,
+                     max_collisions, tripped)
     };
 
     /// A flight from the start of the medium's range, with a fresh tau
@@ -691,7 +770,25 @@ private:
         f.walk = k.volume->walk_begin(wr, mint, maxt, active);
         f.t = mint;
         f.tau = -dr::log(1.f - sampler->next_1d(active));
+        f.steps = f.collisions = f.tripped = 0;
+        // Walk steps: every step crosses a cell face, and cells are at least
+        // 8 voxels wide, so a segment crosses at most sum_a |d_a| len / 8 + 3
+        // of them; twice that, and 64 for round-off
+        Float len = dr::maximum(maxt - mint, 0.f),
+              faces = (dr::abs(wr.direction.x()) + dr::abs(wr.direction.y()) +
+                       dr::abs(wr.direction.z())) * len * 0.125f + 3.f;
+        f.max_steps = to_bound(2.f * faces + 64.f);
+        // Tentative collisions: Poisson with a mean of at most T, the global
+        // majorant's optical depth over the range; T + 10 sqrt(T) + 64 is
+        // exceeded with probability below 1e-20
+        Float T = k.max_majorant * len;
+        f.max_collisions = to_bound(T + 10.f * dr::sqrt(T) + 64.f);
         return f;
+    }
+
+    /// A float bound as an iteration count (NaN, infinity and >= 2^31: 2^31)
+    static UInt32 to_bound(const Float &n) {
+        return dr::select(n < 2147483648.f, UInt32(dr::maximum(n, 0.f)), UInt32(1u << 31));
     }
 
     /**
@@ -718,6 +815,12 @@ private:
                 Mask more = k.volume->walk_advance(f.walk, wr, miss);
                 f.alive &= !(miss && !more);
                 f.searching &= more;
+                // The loop bound: a stopped walk ends the flight (no collision)
+                dr::masked(f.steps, miss) += 1;
+                Mask trip = f.searching && f.steps > f.max_steps;
+                dr::masked(f.tripped, trip) |= (1u << WalkLoop);
+                f.alive &= !trip;
+                f.searching &= !trip;
             },
             "volpathlocal: walk to the next collision");
     }
@@ -774,11 +877,13 @@ private:
                 dr::masked(ts.flight.tau, null) = -dr::log(1.f - u);
                 ts.real |= real;
                 ts.flight.alive &= !real;
+                count_collision(ts.flight, DeltaLoop, null);
             },
             "volpathlocal: delta tracking");
 
         Collision c;
         c.real = ts.real;
+        c.tripped = ts.flight.tripped;
         const Float &t = ts.flight.t;
         c.mei = interaction_at(k, ray, dr::select(ts.real, t, dr::Infinity<Float>), mint);
         c.mei.p = ray(t);
@@ -795,9 +900,9 @@ private:
      * transmittance estimate prod(mu_n / mu) over the tentative collisions
      * of next_collision().
      */
-    UnpolarizedSpectrum track_transmittance(const Tracked &k, const Ray3f &ray,
-                                            const Float &tmax, Sampler *sampler,
-                                            Mask active) const {
+    std::pair<UnpolarizedSpectrum, UInt32>
+    track_transmittance(const Tracked &k, const Ray3f &ray, const Float &tmax,
+                        Sampler *sampler, Mask active) const {
         ScopedPhase scope_phase(ProfilerPhase::MediumEvaluate);
         auto [mint, maxt] = medium_range(k, ray, tmax, active);
         const ScalarFloat scale = k.scale;
@@ -828,9 +933,85 @@ private:
                 dr::masked(rs.transmittance, hit) *= (mu - sigma_t) / mu;
                 dr::masked(rs.flight.tau, hit) = -dr::log(1.f - u);
                 rs.flight.alive &= !(hit && dr::all(rs.transmittance == 0.f));
+                count_collision(rs.flight, RatioLoop, hit);
             },
             "volpathlocal: ratio tracking");
-        return rs.transmittance;
+        return { rs.transmittance, rs.flight.tripped };
+    }
+
+    /// A tentative collision of a flight: counted; past its bound the flight
+    /// ends there (as if the walk had ended)
+    void count_collision(Flight &f, LoopBound loop, const Mask &hit) const {
+        dr::masked(f.collisions, hit) += 1;
+        Mask trip = hit && f.alive && f.collisions > f.max_collisions;
+        dr::masked(f.tripped, trip) |= (1u << loop);
+        f.alive &= !trip;
+    }
+
+    // =====================================================================
+    //  Loop bounds: every loop ends, whatever the input
+    // =====================================================================
+
+
+    /// One iteration of the path or shadow loop done: `progress` where it
+    /// scattered or moved
+    void bound_loop(LoopBound loop, const Mask &progress, Mask &active, UInt32 &stalls,
+                    UInt32 &steps, UInt32 &tripped) const {
+        stalls = dr::select(progress, 0u, stalls + 1u);
+        steps += 1u;
+        Mask trip = active && (stalls >= kMaxStalls || steps >= kMaxLoopSteps);
+        dr::masked(tripped, trip) |= (1u << loop);
+        active &= !trip;
+    }
+
+    /// Adds a sample's trips (bits of `tripped`) to the counters
+    void record_trips(const UInt32 &tripped, const Mask &active) const {
+        if constexpr (dr::is_jit_v<Float>) {
+            for (uint32_t i = 0; i < LoopCount; ++i)
+                dr::scatter_reduce(ReduceOp::Add, m_trips, UInt32(1), UInt32(i),
+                                   active && (tripped & (1u << i)) != 0u);
+        } else {
+            for (uint32_t i = 0; i < LoopCount; ++i)
+                if (active && (tripped & (1u << i)))
+                    m_scalar_trips[i].fetch_add(1, std::memory_order_relaxed);
+        }
+    }
+
+    /// Whether reading the counters evaluates nothing (no pending render)
+    bool trip_counts_ready() const {
+        if constexpr (dr::is_jit_v<Float>) {
+            VarState state = jit_var_state(m_trips.index());
+            return state == VarState::Evaluated || state == VarState::Literal;
+        } else {
+            return true;
+        }
+    }
+
+    std::vector<uint32_t> trip_counts() const {
+        std::vector<uint32_t> out(LoopCount);
+        if constexpr (dr::is_jit_v<Float>) {
+            UInt32 trips = m_trips;
+            dr::eval(trips);
+            dr::store(out.data(), trips);
+        } else {
+            for (uint32_t i = 0; i < LoopCount; ++i)
+                out[i] = m_scalar_trips[i].load();
+        }
+        return out;
+    }
+
+    /// After a render: warns about the trips since the last report
+    void report_trips() const {
+        std::vector<uint32_t> trips = trip_counts();
+        std::lock_guard<std::mutex> guard(m_prepare_mutex);
+        for (uint32_t i = 0; i < LoopCount; ++i) {
+            uint32_t fresh = trips[i] - m_trips_reported[i];
+            if (fresh)
+                Log(Warn, "volpathlocal: the %s loop's bound stopped %u lanes in this render "
+                          "(%u in all): a bug or an unsupported input; please report it with "
+                          "the scene", kLoopNames[i], fresh, trips[i]);
+            m_trips_reported[i] = trips[i];
+        }
     }
 
     // =====================================================================
@@ -857,6 +1038,10 @@ private:
 
     ScalarFloat m_coarse_depth;
     ScalarFloat m_max_ratio;
+    mutable UInt32 m_trips;                             ///< per LoopBound (JIT)
+    mutable std::atomic<uint32_t> m_scalar_trips[LoopCount] = {}; ///< (scalar)
+    mutable uint32_t m_trips_reported[LoopCount] = {};
+    uint32_t m_trip_total_host = 0;                     ///< traverse()'s copy
     mutable std::vector<Tracked> m_tracked;
     mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
     mutable std::mutex m_prepare_mutex;

@@ -12,6 +12,7 @@
 #include <nanovdb_loader/load.h>
 #include <nanovdb_loader/majorants.h>
 #include <nanovdb_mitsuba/local_majorants.h>
+#include <nanovdb_mitsuba/plugin_variants.h>
 
 #include <array>
 #include <atomic>
@@ -338,6 +339,8 @@ public:
     // collision stays in its segment).
 
     ScalarFloat local_majorant_ratio() const override { return m_majorant_ratio; }
+
+    ScalarFloat majorant_bound() const override { return m_max_host; }
 
     WalkRay walk_ray(const Ray3f &ray, const Float &thin_depth, Mask /* active */) const override {
         WalkRay r;
