@@ -78,6 +78,27 @@ template <typename UInt32> struct MajorantGrid {
     Float clamp;        ///< lookups are clamped to this (the volume's max())
     Coord<UInt32> base; ///< cell-space positions are relative to this
 
+    /// A volume whose lookups clamp their position to its box (gridvolume's
+    /// convention) reads its edge voxels outside the box, where the tree's
+    /// bounds know nothing of them: cells of the walk that do not meet the
+    /// box [box_lo, box_hi] (cell space, voxels, inclusive) get `outside`
+    /// (its max()) as their bound. A cell that meets the box reads only
+    /// voxels of its own ringed region (the clamp keeps every position in
+    /// the part of the cell inside the box), which its bound covers.
+    /// Host flag: the test is traced only for such volumes.
+    bool clamp_to_box = false;
+    dr::Array<dr::int32_array_t<UInt32>, 3> box_lo, box_hi;
+    Float outside;
+
+    void set_clamp_box(const int32_t lo[3], const int32_t hi[3], float outside_bound) {
+        clamp_to_box = true;
+        for (int k = 0; k < 3; ++k) {
+            box_lo[k] = dr::opaque<dr::int32_array_t<UInt32>>(lo[k]);
+            box_hi[k] = dr::opaque<dr::int32_array_t<UInt32>>(hi[k]);
+        }
+        outside = dr::opaque<Float>(outside_bound);
+    }
+
     /// From the loader's table. `scale_bits` multiplies every bound (e.g. by
     /// 1 + 2^-20, to cover the few ulps by which rounded trilinear weights
     /// overshoot); `base` must be a multiple of 4096 per axis.
@@ -379,6 +400,16 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     UInt32 dim = dr::select(thin_lower, UInt32(128u), cell.dim);
     dim = dr::select(thin_brick, UInt32(1u << BRICK_LOG2_DIM), dim);
     dim = dr::select(into_brick, UInt32(8u), dim);
+
+    if (g.clamp_to_box) {
+        Int32 d = dr::reinterpret_array<Int32>(dim), low = ~(d - 1);
+        Mask outside = false;
+        for (int k = 0; k < 3; ++k) {
+            Int32 first = p[k] & low; // the cell's first voxel (relative to g.base)
+            outside |= (first > g.box_hi[k]) | (first + (d - 1) < g.box_lo[k]);
+        }
+        bound = dr::select(outside, dr::maximum(bound, g.outside), bound);
+    }
 
     // max(bound, 0) also turns the -Inf of a node without values into 0
     walk.majorant = dr::select(active, dr::minimum(dr::maximum(bound, 0.f), g.clamp),

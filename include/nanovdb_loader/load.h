@@ -30,4 +30,10 @@ struct DecodedGrid {
 DecodedGrid decode_grid(const std::string &path, const GridEntry &entry, void *dst,
                         uint64_t dst_bytes, InvalidValues policy);
 
+/// The same for the grid `name` in memory (build.h's buffer), copied into
+/// `dst`: `label` names its source in errors, as a path would
+DecodedGrid decode_grid_bytes(const std::string &label, const std::string &name,
+                              const void *src, uint64_t src_bytes, void *dst,
+                              uint64_t dst_bytes, InvalidValues policy);
+
 } // namespace nanovdb_loader

@@ -32,6 +32,11 @@ struct IndexBox {
 /// leave the int32 range spans all of it (stencil coordinates wrap there).
 IndexBox lookup_box(const GridSummary &summary, bool trilinear);
 
+/// The same for a volume that spans `volume_box` (not necessarily the
+/// active box): grown by the ring where `ring` (trilinear lookups that read
+/// the tree beyond the box; none where they clamp to it)
+IndexBox lookup_box(IndexBox volume_box, bool ring);
+
 /// The largest value (NaN skipped) a lookup at any integer coordinate of
 /// `box` returns. O(nodes the box touches), plus 512 values for each leaf
 /// the box cuts.

@@ -141,7 +141,7 @@ public:
         TensorXf image = Base::render(scene, sensor, seed, spp, develop, evaluate);
         // (a JIT image not evaluated yet: its trips are reported by the next
         // render(), to_string() or traverse(), so as not to evaluate it here)
-        if (evaluate || trip_counts_ready())
+        if ((evaluate && !recording()) || trip_counts_ready())
             report_trips();
         return image;
     }
@@ -405,11 +405,17 @@ private:
                 MediumInteraction3f mei_o =
                     medium->sample_interaction(ray, sampler->next_1d(other), channel, other);
                 dr::masked(mei_o.t, other && (si.t < mei_o.t)) = dr::Infinity<Float>;
-                if (dr::any_or<true>(fallback_spectral)) {
+                // Differs from volpath: a flight that leaves the medium without
+                // a collision and meets no surface (an unenclosed medium) keeps
+                // its throughput, its weight tr / pdf being 1 in the limit;
+                // volpath computes 0 / 0 there and loses the path. (Tracked
+                // media do the same: see track_collision.)
+                Mask weighted = fallback_spectral && (mei_o.is_valid() || si.is_valid());
+                if (dr::any_or<true>(weighted)) {
                     auto [tr, free_flight_pdf] =
-                        medium->transmittance_eval_pdf(mei_o, si, fallback_spectral);
+                        medium->transmittance_eval_pdf(mei_o, si, weighted);
                     Float tr_pdf = index_spectrum(free_flight_pdf, channel);
-                    dr::masked(ps.throughput, fallback_spectral) *=
+                    dr::masked(ps.throughput, weighted) *=
                         dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
                 }
                 escaped_medium |= other && !mei_o.is_valid();
@@ -654,13 +660,16 @@ private:
                 dr::masked(mei.t, other && (si.t < mei.t)) = dr::Infinity<Float>;
                 Mask is_spectral = medium->has_spectral_extinction() && other;
                 Mask not_spectral = !is_spectral && other;
-                if (dr::any_or<true>(is_spectral)) {
+                // Differs from volpath, as for the path: no collision and no
+                // surface before an emitter at infinity is a weight of 1
+                Mask weighted = is_spectral && (mei.is_valid() || si.is_valid());
+                if (dr::any_or<true>(weighted)) {
                     Float t = dr::minimum(remaining, dr::minimum(mei.t, si.t)) - mei.mint;
                     UnpolarizedSpectrum tr = dr::exp(-t * mei.combined_extinction);
                     UnpolarizedSpectrum pdf = dr::select(si.t < mei.t || mei.t > remaining, tr,
                                                          tr * mei.combined_extinction);
                     Float tr_pdf = index_spectrum(pdf, channel);
-                    dr::masked(ss.transmittance, is_spectral) *=
+                    dr::masked(ss.transmittance, weighted) *=
                         dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
                 }
                 // Past the emitter
@@ -977,9 +986,20 @@ private:
         }
     }
 
-    /// Whether reading the counters evaluates nothing (no pending render)
+    /// Inside the recording of a frozen function (dr.freeze): no reads
+    static bool recording() {
+        if constexpr (dr::is_jit_v<Float>)
+            return jit_flag(JitFlag::FreezingScope);
+        else
+            return false;
+    }
+
+    /// Whether reading the counters evaluates nothing (no pending render,
+    /// and not inside a frozen function's recording)
     bool trip_counts_ready() const {
         if constexpr (dr::is_jit_v<Float>) {
+            if (recording())
+                return false;
             VarState state = jit_var_state(m_trips.index());
             return state == VarState::Evaluated || state == VarState::Literal;
         } else {
@@ -1042,6 +1062,8 @@ private:
     mutable std::atomic<uint32_t> m_scalar_trips[LoopCount] = {}; ///< (scalar)
     mutable uint32_t m_trips_reported[LoopCount] = {};
     uint32_t m_trip_total_host = 0;                     ///< traverse()'s copy
+
+    MI_TRAVERSE_CB(Base, m_trips)
     mutable std::vector<Tracked> m_tracked;
     mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
     mutable std::mutex m_prepare_mutex;

@@ -8,19 +8,41 @@
 
 namespace nanovdb_loader {
 
-DecodedGrid decode_grid(const std::string &path, const GridEntry &entry, void *dst,
-                        uint64_t dst_bytes, InvalidValues policy) {
-    if (dst_bytes < entry.grid_size)
-        detail::fail(path, "grid \"" + entry.name + "\": a buffer of " +
-                               std::to_string(dst_bytes) + " bytes cannot hold its " +
-                               std::to_string(entry.grid_size) + " bytes");
-    std::memset(static_cast<uint8_t *>(dst) + entry.grid_size, 0,
-                size_t(dst_bytes - entry.grid_size));
-    read_grid(path, entry, dst);
-    DecodedGrid d{ validate_grid(path, dst, entry.grid_size), {}, {} };
-    d.warnings = apply_value_policy(d.grid, entry.name, policy);
+namespace {
+
+/// What both sources share once the bytes are in `dst`
+DecodedGrid decode_in_place(const std::string &path, const std::string &name, void *dst,
+                            uint64_t grid_bytes, InvalidValues policy) {
+    DecodedGrid d{ validate_grid(path, dst, grid_bytes), {}, {} };
+    d.warnings = apply_value_policy(d.grid, name, policy);
     d.plan = plan_readers(d.grid);
     return d;
+}
+
+void check_capacity(const std::string &path, const std::string &name, void *dst,
+                    uint64_t dst_bytes, uint64_t grid_bytes) {
+    if (dst_bytes < grid_bytes)
+        detail::fail(path, "grid \"" + name + "\": a buffer of " + std::to_string(dst_bytes) +
+                               " bytes cannot hold its " + std::to_string(grid_bytes) +
+                               " bytes");
+    std::memset(static_cast<uint8_t *>(dst) + grid_bytes, 0, size_t(dst_bytes - grid_bytes));
+}
+
+} // namespace
+
+DecodedGrid decode_grid(const std::string &path, const GridEntry &entry, void *dst,
+                        uint64_t dst_bytes, InvalidValues policy) {
+    check_capacity(path, entry.name, dst, dst_bytes, entry.grid_size);
+    read_grid(path, entry, dst);
+    return decode_in_place(path, entry.name, dst, entry.grid_size, policy);
+}
+
+DecodedGrid decode_grid_bytes(const std::string &label, const std::string &name,
+                              const void *src, uint64_t src_bytes, void *dst,
+                              uint64_t dst_bytes, InvalidValues policy) {
+    check_capacity(label, name, dst, dst_bytes, src_bytes);
+    std::memcpy(dst, src, size_t(src_bytes));
+    return decode_in_place(label, name, dst, src_bytes, policy);
 }
 
 } // namespace nanovdb_loader

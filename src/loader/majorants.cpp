@@ -175,7 +175,13 @@ IndexBox lookup_box(const GridSummary &s, bool trilinear) {
     for (int a = 0; a < 3; ++a) {
         box.lo[a] = s.empty ? 0 : s.bbox_min[a];
         box.hi[a] = s.empty ? 0 : s.bbox_max[a];
-        if (!trilinear)
+    }
+    return lookup_box(box, trilinear);
+}
+
+IndexBox lookup_box(IndexBox box, bool ring) {
+    for (int a = 0; a < 3; ++a) {
+        if (!ring)
             continue;
         if (box.lo[a] == INT32_MIN || box.hi[a] == INT32_MAX) {
             box.lo[a] = INT32_MIN; // the ring wraps around: all of the axis

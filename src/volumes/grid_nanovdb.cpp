@@ -14,8 +14,11 @@
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
 
+#include "memory_source.h"
+
 #include <array>
 #include <atomic>
+#include <optional>
 #include <tuple>
 #include <cstdlib>
 #include <cstring>
@@ -175,9 +178,24 @@ public:
     using ScalarGridScales = std::conditional_t<dr::is_jit_v<Float>, Float, std::vector<float>>;
 
     NanoVDBVolume(const Properties &props) : Base(props), m_grid(empty_grid_buffer()) {
-        fs::path file_path =
-            file_resolver()->resolve(props.get<std::string_view>("filename"));
-        m_filename = file_path.string();
+        // Where the values come from: a file, or values in memory (built
+        // into a grid here: nanovdb_loader/build.h)
+        const bool grid_object = props.has_property("grid") &&
+                                 props.type("grid") == Properties::Type::Object;
+        const int sources = int(props.has_property("filename")) + int(grid_object) +
+                            int(props.has_property("data")) +
+                            int(props.has_property("values") || props.has_property("coords"));
+        if (sources != 1)
+            Throw("nanovdbvolume: give exactly one of \"filename\" (a .nvdb file), \"grid\" "
+                  "(a VolumeGrid), \"data\" (a dense tensor) or \"values\" with \"coords\" "
+                  "(voxels one by one); %d were given", sources);
+        std::optional<MemorySource<Float, Spectrum>> memory;
+        if (props.has_property("filename")) {
+            m_filename = file_resolver()->resolve(props.get<std::string_view>("filename")).string();
+        } else {
+            memory.emplace(props, grid_object);
+            m_filename = memory->label;
+        }
 
         std::string_view filter = props.get<std::string_view>("filter_type", "trilinear");
         if (filter == "nearest")
@@ -193,7 +211,35 @@ public:
             Throw("nanovdbvolume: \"%s\": invalid value \"%s\" for invalid_values, must be "
                   "one of: \"error\" or \"clamp\"", m_filename, invalid);
 
+        // Outside the box: the tree's own values (VDB semantics; the default
+        // for files and voxel lists) or the edge voxels (gridvolume's
+        // convention, and its default: the default for dense data)
+        const bool dense_source = grid_object || props.has_property("data");
+        std::string_view wrap = props.get<std::string_view>("wrap_mode",
+                                                             dense_source ? "clamp" : "tree");
+        if (wrap == "clamp")
+            m_clamp = true;
+        else if (wrap == "repeat" || wrap == "mirror")
+            Throw("nanovdbvolume: \"%s\": wrap_mode \"%s\" is not supported: a sparse grid has "
+                  "no period to repeat or mirror; use \"clamp\" (the edge voxels, gridvolume's "
+                  "default) or \"tree\" (the tree's own values)", m_filename, wrap);
+        else if (wrap != "tree")
+            Throw("nanovdbvolume: \"%s\": invalid wrap_mode \"%s\", must be one of: \"tree\" "
+                  "or \"clamp\"", m_filename, wrap);
+
         m_use_grid_transform = props.get<bool>("use_grid_transform", false);
+        const bool use_grid_bbox = props.get<bool>("use_grid_bbox", false);
+        if (use_grid_bbox && m_use_grid_transform)
+            Throw("nanovdbvolume: \"%s\": use_grid_bbox and use_grid_transform both place the "
+                  "volume by the grid's own coordinates; set one of them", m_filename);
+        if (use_grid_bbox && (props.has_property("data") || props.has_property("values")))
+            Throw("nanovdbvolume: \"%s\": use_grid_bbox needs a bounding box, which a file or a "
+                  "VolumeGrid has and a tensor does not (as for gridvolume)", m_filename);
+        // gridvolume's hardware textures (CUDA): nothing to switch here, the
+        // tree is traversed on every backend
+        if (props.has_property("accel"))
+            Log(Debug, "nanovdbvolume: \"%s\": accel=%s has no effect (no texture units: the "
+                       "tree is traversed)", m_filename, props.get<bool>("accel"));
         m_raw = props.get<bool>("raw", false);
         m_count = props.get<bool>("count_lookups", false);
         if constexpr (dr::is_jit_v<Float>) {
@@ -202,14 +248,55 @@ public:
                 dr::make_opaque(m_counters);
             }
         }
-        std::string selector(props.get<std::string_view>("grid", ""));
 
-        nanovdb_loader::GridSummary summary = load_grid(selector);
-        set_index_box(summary);
+        nanovdb_loader::GridSummary summary;
+        std::optional<nanovdb_loader::IndexBox> box; // the volume's box, if not the active one
+        if (props.has_property("filename")) {
+            summary = load_grid(std::string(grid_object ? "" : props.get<std::string_view>("grid", "")));
+        } else {
+            nanovdb_loader::BuildOptions options;
+            options.background = props.get<ScalarFloat>("background", 0.f);
+            options.threshold = props.get<ScalarFloat>("threshold", 0.f);
+            if (!std::isfinite(options.background))
+                Throw("nanovdbvolume: \"%s\": background must be finite, got %f", m_filename,
+                      options.background);
+            if (!(options.threshold >= 0.f))
+                Throw("nanovdbvolume: \"%s\": threshold must be >= 0, got %f", m_filename,
+                      options.threshold);
+            auto [built, dense_box] = memory->build(options);
+            box = dense_box;
+            if (built.left_out)
+                Log(Info, "nanovdbvolume: \"%s\": %llu voxels within threshold = %f of the "
+                          "background left out", m_filename, (unsigned long long) built.left_out,
+                    options.threshold);
+            summary = load_bytes(options.name, built.bytes, box);
+        }
+        set_index_box(summary, box);
+        if (use_grid_bbox)
+            place_by_grid_bbox(summary, memory ? memory->bbox_transform : std::nullopt);
         if (m_use_grid_transform)
             set_grid_transform(summary);
         set_cell_transform(summary);
         m_channel_count = m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F ? 3 : 1;
+
+        // gridvolume's max_value: a bound given by the user. A larger one
+        // than the values' own is kept (a looser majorant: slower, still
+        // unbiased); a smaller one would bias every render, so it is refused
+        // with a warning, and the values' own is kept.
+        if (props.has_property("max_value")) {
+            ScalarFloat given = props.get<ScalarFloat>("max_value");
+            if (given >= m_max_host) {
+                m_max_host = given;
+                m_max = dr::opaque<Float>(m_max_host);
+                m_max3_host = dr::maximum(m_max3_host, ScalarVector3f(given));
+                for (int k = 0; k < 3; ++k)
+                    m_max3[k] = dr::opaque<Float>(m_max3_host[k]);
+            } else {
+                Log(Warn, "nanovdbvolume: \"%s\": max_value = %f is below the largest value "
+                          "lookups return (%f): a majorant that small would bias renders, "
+                          "so max() stays %f", m_filename, given, m_max_host, m_max_host);
+            }
+        }
         Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
             m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
             m_grid_bytes, m_max_host);
@@ -409,15 +496,17 @@ private:
             // Same arithmetic as Dr.Jit's texture (gridvolume), so both plugins
             // pick the same voxels and weights.
             if (m_nearest)
-                return value_at(index_add(index_floor(p * m_resolution), m_index_min), active);
+                return value_at(index_add(clamp_voxel(index_floor(p * m_resolution)), m_index_min),
+                                active);
             rel = dr::fmadd(p, m_resolution, -.5f);
         } else {
             Point4f p = m_index_from_world * Point4f(it.p.x(), it.p.y(), it.p.z(), 1.f);
             rel = Vector3f(p.x(), p.y(), p.z());
             if (m_nearest)
-                return value_at(index_add(index_floor(rel + .5f), m_index_min), active);
+                return value_at(index_add(clamp_voxel(index_floor(rel + .5f)), m_index_min),
+                                active);
         }
-        return trilinear_at(rel, active);
+        return trilinear_at(clamp_position(rel), active);
     }
 
     /// count_lookups: adds the active lanes to counter `which` (see
@@ -637,14 +726,29 @@ private:
         if (!m_use_grid_transform) {
             Point3f p = m_to_local * it.p;
             if (m_nearest)
-                return { true, index_add(index_floor(p * m_resolution), m_index_min), Vector3f() };
-            return { false, Vector3i(), dr::fmadd(p, m_resolution, -.5f) };
+                return { true, index_add(clamp_voxel(index_floor(p * m_resolution)), m_index_min),
+                         Vector3f() };
+            return { false, Vector3i(), clamp_position(dr::fmadd(p, m_resolution, -.5f)) };
         }
         Point4f p = m_index_from_world * Point4f(it.p.x(), it.p.y(), it.p.z(), 1.f);
         Vector3f rel(p.x(), p.y(), p.z());
         if (m_nearest)
-            return { true, index_add(index_floor(rel + .5f), m_index_min), Vector3f() };
-        return { false, Vector3i(), rel };
+            return { true, index_add(clamp_voxel(index_floor(rel + .5f)), m_index_min),
+                     Vector3f() };
+        return { false, Vector3i(), clamp_position(rel) };
+    }
+
+    /// wrap_mode "clamp" (gridvolume's convention): a voxel (relative to the
+    /// box minimum) outside the box is its nearest edge voxel ...
+    Vector3i clamp_voxel(const Vector3i &v) const {
+        return m_clamp ? dr::clip(v, 0, m_last_voxel) : v;
+    }
+
+    /// ... and a trilinear position is kept between the edge voxels' centres:
+    /// the same value as clamping each corner of the stencil, as Dr.Jit's
+    /// texture does (up to the rounding of weights that sum to 1)
+    Vector3f clamp_position(const Vector3f &rel) const {
+        return m_clamp ? dr::clip(rel, 0.f, Vector3f(m_last_voxel)) : rel;
     }
 
     static constexpr uint32_t kVec3f = nanovdb_drjit::layout::GRID_TYPE_VEC3F;
@@ -699,99 +803,144 @@ private:
             return GridBuffer(nullptr, std::free);
     }
 
-    /// Selects, decodes and hands the grid to the backend; sets m_grid,
-    /// m_reader, the value range and the names. Loader errors name the file.
+    /// Selects, decodes and hands the file's grid to the backend (adopt())
     nanovdb_loader::GridSummary load_grid(const std::string &selector) {
         namespace loader = nanovdb_loader;
-        namespace backend = nanovdb_drjit::backend;
         try {
             std::vector<loader::GridEntry> grids = loader::list_grids(m_filename);
             const loader::GridEntry &entry = loader::select_grid(m_filename, grids, selector);
             m_grid_name = entry.name;
             m_grid_type = entry.grid_type;
             m_grid_class = entry.grid_class;
-            const bool vec3 = m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
-            // Spectral variants turn colours into sRGB-model coefficients
-            // and a scale, as gridvolume does (unless raw)
-            const bool spectral = vec3 && is_spectral_v<Spectrum> && !m_raw;
-            m_grid_bytes = (size_t) entry.grid_size;
-            m_backend_bytes = ((m_grid_bytes + 63) / 64) * 64;
-            size_t word_count = m_backend_bytes / 4;
-
-            // One host block: the final buffer on scalar and LLVM variants
-            // (LLVM kernels read host memory in place), the staging buffer on CUDA.
-            std::unique_ptr<uint32_t[], void (*)(void *)> host(nullptr, std::free);
-            void *ptr = nullptr;
-            if (posix_memalign(&ptr, 64, m_backend_bytes) != 0 || !ptr)
-                Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
-                      m_filename, m_grid_bytes, m_grid_name);
-            host.reset((uint32_t *) ptr);
-
+            HostBlock host = allocate(entry.grid_size);
             loader::DecodedGrid decoded = loader::decode_grid(
                 m_filename, entry, host.get(), m_backend_bytes, m_invalid_values);
-            for (const std::string &warning : decoded.warnings)
-                Log(Warn, "%s", warning);
-            m_reader = Reader::from_plan(decoded.plan);
-            loader::GridSummary summary = decoded.grid.summary();
-            // max(): what lookups inside the volume can return (the active
-            // box, and the ring trilinear stencils reach), not every value
-            // the grid stores; lookups are clamped to it (see lookup())
-            m_grid_max_host = decoded.grid.values().max;
-            const loader::IndexBox box = loader::lookup_box(summary, !m_nearest);
-            m_max_host = loader::max_in_box(decoded.grid, box);
-            if (vec3) { // per channel: the clamp of each channel, max_per_channel()
-                std::array<float, 3> m = loader::max_in_box_per_channel(decoded.grid, box);
-                for (int k = 0; k < 3; ++k)
-                    m_max3_host[k] = m[k];
-            } else {
-                m_max3_host = ScalarVector3f(m_max_host);
-            }
-            // A spectrum is scale * S(coefficients), S in [0, 1], scale =
-            // 2 max(rgb): it is bounded by twice the largest channel
-            const float spectral_factor = spectral ? 2.f : 1.f;
-            if (spectral) {
-                m_max_host *= spectral_factor;
-                m_grid_max_host *= spectral_factor;
-            }
-            m_max = dr::opaque<Float>(m_max_host);
-            for (int k = 0; k < 3; ++k)
-                m_max3[k] = dr::opaque<Float>(m_max3_host[k]);
-            m_grid_name = summary.name; // the grid's own name (GridData)
-            // Per-node bounds for majorant tracking, raised by 2^-20 for the
-            // few ulps by which rounded trilinear weights can overshoot
-            loader::NodeMajorants majorants = loader::node_majorants(decoded.grid);
-            int32_t base[3];
-            for (int k = 0; k < 3; ++k)
-                base[k] = summary.empty ? 0 : int32_t(uint32_t(summary.bbox_min[k]) & ~4095u);
-            m_majorants = nanovdb_drjit::MajorantGrid<UInt32>::make(
-                majorants.layout, majorants.values, (1.f + 0x1p-20f) * spectral_factor,
-                m_max_host, base);
-            m_majorant_bytes = (size_t) majorants.bytes();
-            const double mean = spectral_factor * loader::mean_bound(
-                decoded.grid, majorants, box, m_max_host / spectral_factor);
-            m_majorant_ratio = m_max_host > 0.f ? ScalarFloat(mean / m_max_host) : 1.f;
-            for (int k = 0; k < 3; ++k)
-                m_cell_base_host[k] = base[k];
-
-            if (spectral)
-                to_spectral_coefficients(decoded.grid, summary);
-
-            if constexpr (!dr::is_jit_v<Float>) {
-                m_grid = std::move(host);
-            } else if constexpr (dr::backend_v<Float> == JitBackend::LLVM) {
-                m_grid = UInt32::steal(backend::map_host_words(host.release(), word_count));
-            } else {
-                try {
-                    m_grid = UInt32::steal(backend::upload_cuda_words(host.get(), word_count));
-                } catch (const std::exception &e) {
-                    Throw("nanovdbvolume: \"%s\": grid \"%s\" (%zu bytes): %s", m_filename,
-                          m_grid_name, m_grid_bytes, e.what());
-                }
-            }
-            return summary;
+            return adopt(std::move(host), decoded, std::nullopt);
         } catch (const loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
+    }
+
+    /// The same for a grid built in memory (memory_source.h); `box`: the
+    /// volume's box if it is not the active one
+    nanovdb_loader::GridSummary load_bytes(const std::string &name,
+                                           const std::vector<uint8_t> &bytes,
+                                           const std::optional<nanovdb_loader::IndexBox> &box) {
+        namespace loader = nanovdb_loader;
+        try {
+            m_grid_name = name;
+            HostBlock host = allocate(bytes.size());
+            loader::DecodedGrid decoded = loader::decode_grid_bytes(
+                m_filename, name, bytes.data(), bytes.size(), host.get(), m_backend_bytes,
+                m_invalid_values);
+            m_grid_type = decoded.grid.summary().grid_type;
+            m_grid_class = decoded.grid.summary().grid_class;
+            return adopt(std::move(host), decoded, box);
+        } catch (const loader::Error &e) {
+            Throw("nanovdbvolume: %s", e.what());
+        }
+    }
+
+    using HostBlock = std::unique_ptr<uint32_t[], void (*)(void *)>;
+
+    /// One host block for `bytes` of grid, padded to 64 bytes: the final
+    /// buffer on scalar and LLVM variants (LLVM kernels read host memory in
+    /// place), the staging buffer on CUDA
+    HostBlock allocate(uint64_t bytes) {
+        m_grid_bytes = (size_t) bytes;
+        m_backend_bytes = ((m_grid_bytes + 63) / 64) * 64;
+        HostBlock host(nullptr, std::free);
+        void *ptr = nullptr;
+        if (posix_memalign(&ptr, 64, m_backend_bytes) != 0 || !ptr)
+            Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
+                  m_filename, m_grid_bytes, m_grid_name);
+        host.reset((uint32_t *) ptr);
+        return host;
+    }
+
+    /// A decoded grid in `host`: its bounds (max(), per-node majorants) and
+    /// the hand-off to the backend; sets m_grid, m_reader, the value range.
+    /// `volume_box`: the volume's box if it is not the active one.
+    nanovdb_loader::GridSummary adopt(HostBlock host, const nanovdb_loader::DecodedGrid &decoded,
+                                      const std::optional<nanovdb_loader::IndexBox> &volume_box) {
+        namespace loader = nanovdb_loader;
+        namespace backend = nanovdb_drjit::backend;
+        const bool vec3 = m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
+        // Spectral variants turn colours into sRGB-model coefficients
+        // and a scale, as gridvolume does (unless raw)
+        const bool spectral = vec3 && is_spectral_v<Spectrum> && !m_raw;
+        const size_t word_count = m_backend_bytes / 4;
+        for (const std::string &warning : decoded.warnings)
+            Log(Warn, "%s", warning);
+        m_reader = Reader::from_plan(decoded.plan);
+        loader::GridSummary summary = decoded.grid.summary();
+        // max(): what lookups inside the volume can return (its box, and the
+        // ring trilinear stencils reach unless they clamp to the box), not
+        // every value the grid stores; lookups are clamped to it (lookup())
+        m_grid_max_host = decoded.grid.values().max;
+        const loader::IndexBox box =
+            volume_box ? loader::lookup_box(*volume_box, !m_nearest && !m_clamp)
+                       : loader::lookup_box(summary, !m_nearest && !m_clamp);
+        m_max_host = loader::max_in_box(decoded.grid, box);
+        if (vec3) { // per channel: the clamp of each channel, max_per_channel()
+            std::array<float, 3> m = loader::max_in_box_per_channel(decoded.grid, box);
+            for (int k = 0; k < 3; ++k)
+                m_max3_host[k] = m[k];
+        } else {
+            m_max3_host = ScalarVector3f(m_max_host);
+        }
+        // A spectrum is scale * S(coefficients), S in [0, 1], scale =
+        // 2 max(rgb): it is bounded by twice the largest channel
+        const float spectral_factor = spectral ? 2.f : 1.f;
+        if (spectral) {
+            m_max_host *= spectral_factor;
+            m_grid_max_host *= spectral_factor;
+        }
+        m_max = dr::opaque<Float>(m_max_host);
+        for (int k = 0; k < 3; ++k)
+            m_max3[k] = dr::opaque<Float>(m_max3_host[k]);
+        m_grid_name = summary.name; // the grid's own name (GridData)
+        // Per-node bounds for majorant tracking, raised by 2^-20 for the
+        // few ulps by which rounded trilinear weights can overshoot
+        loader::NodeMajorants majorants = loader::node_majorants(decoded.grid);
+        int32_t base[3];
+        for (int k = 0; k < 3; ++k)
+            base[k] = summary.empty ? 0 : int32_t(uint32_t(summary.bbox_min[k]) & ~4095u);
+        m_majorants = nanovdb_drjit::MajorantGrid<UInt32>::make(
+            majorants.layout, majorants.values, (1.f + 0x1p-20f) * spectral_factor,
+            m_max_host, base);
+        if (m_clamp) { // (walk cells outside the box: see MajorantGrid)
+            const loader::IndexBox vb = volume_box ? *volume_box : loader::lookup_box(summary, false);
+            int32_t lo[3], hi[3];
+            for (int k = 0; k < 3; ++k) {
+                lo[k] = int32_t(uint32_t(vb.lo[k]) - uint32_t(base[k]));
+                hi[k] = int32_t(uint32_t(vb.hi[k]) - uint32_t(base[k]));
+            }
+            m_majorants.set_clamp_box(lo, hi, m_max_host);
+        }
+        m_majorant_bytes = (size_t) majorants.bytes();
+        const double mean = spectral_factor * loader::mean_bound(
+            decoded.grid, majorants, box, m_max_host / spectral_factor);
+        m_majorant_ratio = m_max_host > 0.f ? ScalarFloat(mean / m_max_host) : 1.f;
+        for (int k = 0; k < 3; ++k)
+            m_cell_base_host[k] = base[k];
+
+        if (spectral)
+            to_spectral_coefficients(decoded.grid, summary);
+
+        if constexpr (!dr::is_jit_v<Float>) {
+            m_grid = std::move(host);
+        } else if constexpr (dr::backend_v<Float> == JitBackend::LLVM) {
+            m_grid = UInt32::steal(backend::map_host_words(host.release(), word_count));
+        } else {
+            try {
+                m_grid = UInt32::steal(backend::upload_cuda_words(host.get(), word_count));
+            } catch (const std::exception &e) {
+                Throw("nanovdbvolume: \"%s\": grid \"%s\" (%zu bytes): %s", m_filename,
+                      m_grid_name, m_grid_bytes, e.what());
+            }
+        }
+        return summary;
     }
 
     /**
@@ -864,12 +1013,17 @@ private:
     /// The active index box [min, max] (inclusive) becomes the volume's
     /// extent. An empty grid reads as the single voxel at the origin, i.e.
     /// its background everywhere.
-    void set_index_box(const nanovdb_loader::GridSummary &summary) {
+    void set_index_box(const nanovdb_loader::GridSummary &summary,
+                       const std::optional<nanovdb_loader::IndexBox> &box) {
         m_background_host = summary.background;
         ScalarVector3i bmin(summary.bbox_min[0], summary.bbox_min[1], summary.bbox_min[2]),
                        bmax(summary.bbox_max[0], summary.bbox_max[1], summary.bbox_max[2]);
         if (summary.empty)
             bmin = bmax = ScalarVector3i(0);
+        if (box) { // a dense source: its whole box, active or not
+            bmin = ScalarVector3i(box->lo[0], box->lo[1], box->lo[2]);
+            bmax = ScalarVector3i(box->hi[0], box->hi[1], box->hi[2]);
+        }
         m_index_min_host = bmin;
         // Extent as 64-bit arithmetic: max - min + 1 overflows int32 for boxes
         // spanning more than 2^31 voxels.
@@ -886,7 +1040,48 @@ private:
         for (int k = 0; k < 3; ++k) {
             m_index_min[k]  = dr::opaque<Int32>(bmin[k]);
             m_resolution[k] = dr::opaque<Float>((ScalarFloat) m_resolution_host[k]);
+            m_last_voxel[k] = dr::opaque<Int32>(m_resolution_host[k] - 1);
         }
+    }
+
+    /// use_grid_bbox (gridvolume's): the unit cube maps to the box the
+    /// volume's values occupy in world space: a VolumeGrid's bbox, or for a
+    /// file the world bounds of its box's voxels (the cells [m - 1/2, M +
+    /// 1/2] of index space through the grid's map: the placement of
+    /// use_grid_transform when the map has no rotation, its bounding box
+    /// when it has one)
+    void place_by_grid_bbox(const nanovdb_loader::GridSummary &summary,
+                            const std::optional<ScalarAffineTransform4f> &grid_bbox_to_unit) {
+        if (grid_bbox_to_unit) { // a VolumeGrid: as gridvolume does
+            m_to_local = *grid_bbox_to_unit * m_to_local;
+            update_bbox();
+            return;
+        }
+        ScalarBoundingBox3f bb;
+        {
+            for (int corner = 0; corner < 8; ++corner) {
+                double idx[3];
+                for (int k = 0; k < 3; ++k)
+                    idx[k] = (corner >> k & 1)
+                                 ? m_index_min_host[k] + m_resolution_host[k] - 0.5
+                                 : m_index_min_host[k] - 0.5;
+                ScalarPoint3f world;
+                for (int r = 0; r < 3; ++r) {
+                    double w = summary.map_vec[r];
+                    for (int c = 0; c < 3; ++c)
+                        w += summary.map_mat[3 * r + c] * idx[c];
+                    world[r] = (float) w;
+                }
+                bb.expand(world);
+            }
+        }
+        if (!bb.valid() || dr::any(bb.extents() <= 0.f))
+            Throw("nanovdbvolume: \"%s\": use_grid_bbox: the grid's box %s has no volume",
+                  m_filename, bb);
+        ScalarAffineTransform4f bbox_to_unit = ScalarAffineTransform4f::scale(dr::rcp(bb.extents())) *
+                                               ScalarAffineTransform4f::translate(-bb.min);
+        m_to_local = bbox_to_unit * m_to_local;
+        update_bbox();
     }
 
     /// With use_grid_transform: local space = the grid's world space.
@@ -964,6 +1159,7 @@ private:
     Reader m_reader;              // readers chosen by the loader's plan
     Vector3i m_index_min;         // active box minimum
     Vector3f m_resolution;        // active box extent in voxels, as Float
+    Vector3i m_last_voxel;        // extent - 1 (wrap_mode "clamp")
     Matrix4f m_index_from_world;  // use_grid_transform: world -> index - min
     Float m_max;                  // max(), the clamp of trilinear results
     Vector3f m_max3;              // Vec3f: the clamp of each channel
@@ -991,6 +1187,7 @@ private:
     int32_t m_cell_base_host[3] = { 0, 0, 0 };       // the walk's base (multiple of 4096)
     dr::Matrix<double, 4> m_index_from_world_host;   // use_grid_transform, in double
     bool m_nearest = false;
+    bool m_clamp = false;                        // wrap_mode "clamp": positions clamped to the box
     bool m_use_grid_transform = false;
     bool m_count = false;                        // count_lookups
     mutable UInt64 m_counters;                   // ... JIT: lookups, walk steps
@@ -999,11 +1196,13 @@ private:
     std::string m_filename, m_grid_name;
 
     MI_TRAVERSE_CB(Base, m_grid, m_reader.root, m_reader.root_table, m_reader.block_min,
-                   m_reader.block_dims, m_index_min, m_resolution, m_index_from_world, m_max,
+                   m_reader.block_dims, m_index_min, m_resolution, m_last_voxel,
+                   m_index_from_world, m_max,
                    m_majorants.table, m_majorants.leaf_begin, m_majorants.lower_begin,
                    m_majorants.upper_begin, m_majorants.tile_begin, m_majorants.lower_slot,
                    m_majorants.upper_slot, m_majorants.tile_slot, m_majorants.background,
-                   m_majorants.clamp, m_majorants.base, m_cell_from_world, m_max3, m_scales,
+                   m_majorants.clamp, m_majorants.base, m_majorants.box_lo, m_majorants.box_hi,
+                   m_majorants.outside, m_cell_from_world, m_max3, m_scales,
                    m_scale_tiles, m_scale_background, m_leaf_begin_word, m_tile_begin_word)
 };
 

@@ -1,0 +1,136 @@
+/*
+    src/volumes/memory_source.h -- nanovdbvolume's values from memory: what
+    gridvolume accepts besides a file (a VolumeGrid object as "grid", a dense
+    tensor as "data"), and voxels given one by one ("values" with "coords"),
+    read from the plugin's Properties into the loader's build inputs
+    (nanovdb_loader/build.h), which make a NanoVDB grid of them.
+
+    Dense sources keep their whole box as the volume's box (as gridvolume
+    spans its array), whatever part of it is active; a voxel list spans its
+    active voxels, as a file does.
+*/
+
+#pragma once
+
+#include <mitsuba/core/properties.h>
+#include <mitsuba/render/volumegrid.h>
+
+#include <nanovdb_loader/build.h>
+#include <nanovdb_loader/majorants.h>
+
+#include <cstring>
+#include <optional>
+#include <string>
+#include <vector>
+
+NAMESPACE_BEGIN(mitsuba)
+
+template <typename Float, typename Spectrum> struct MemorySource {
+    MI_IMPORT_TYPES(VolumeGrid)
+    using TensorXi = dr::Tensor<DynamicBuffer<Int32>>;
+
+    std::string label;                  ///< names the source in messages
+    std::vector<float> values;          ///< host copies (a VolumeGrid's are read in place)
+    std::vector<int32_t> coords;
+    nanovdb_loader::DenseValues dense;
+    nanovdb_loader::SparseValues sparse;
+    bool is_dense = false;
+    std::optional<ScalarAffineTransform4f> bbox_transform; ///< a VolumeGrid's bbox -> unit cube
+    ref<VolumeGrid> grid;               ///< keeps a VolumeGrid's values alive
+
+    /// Reads the source; `grid_object`: "grid" is a VolumeGrid
+    MemorySource(const Properties &props, bool grid_object) {
+        if (grid_object) {
+            ref<Object> other = props.get<ref<Object>>("grid");
+            grid = dynamic_cast<VolumeGrid *>(other.get());
+            if (!grid)
+                Throw("nanovdbvolume: the \"grid\" property must be a grid name (string) or a "
+                      "VolumeGrid object, got %s", other ? other->to_string() : "null");
+            ScalarVector3u size = grid->size();
+            label = tfm::format("grid: a VolumeGrid of %u x %u x %u voxels, %zu channels",
+                                size.x(), size.y(), size.z(), grid->channel_count());
+            set_dense(grid->data(), { size.x(), size.y(), size.z() },
+                      (uint32_t) grid->channel_count());
+            bbox_transform = grid->bbox_transform();
+        } else if (props.has_property("data")) {
+            const TensorXf &t = props.get_any<TensorXf>("data");
+            if (t.ndim() != 3 && t.ndim() != 4)
+                Throw("nanovdbvolume: \"data\" must be a tensor of shape (z, y, x) or "
+                      "(z, y, x, channels), as gridvolume's; it has %zu dimensions", t.ndim());
+            uint32_t channels = t.ndim() == 4 ? (uint32_t) t.shape(3) : 1;
+            label = tfm::format("data: a %zu x %zu x %zu tensor, %u channels", t.shape(2),
+                                t.shape(1), t.shape(0), channels);
+            values = host_copy<float>(t.array());
+            set_dense(values.data(),
+                      { (uint32_t) t.shape(2), (uint32_t) t.shape(1), (uint32_t) t.shape(0) },
+                      channels);
+        } else {
+            if (!props.has_property("values") || !props.has_property("coords"))
+                Throw("nanovdbvolume: voxels one by one need both \"values\" (a TensorXf of "
+                      "shape (n,) or (n, 3)) and \"coords\" (a TensorXi of shape (n, 3))");
+            for (const char *name : { "values", "coords" })
+                if (props.type(name) != Properties::Type::Any)
+                    Throw("nanovdbvolume: \"%s\" must be a tensor (TensorXf values, TensorXi "
+                          "coords); it arrived as a %s property (Mitsuba's dictionary parser "
+                          "turns an array of 3 numbers into a vector: give at least two voxels)",
+                          name, props.type(name) == Properties::Type::Vector ? "vector" : "non-tensor");
+            const TensorXf &v = props.get_any<TensorXf>("values");
+            const TensorXi &c = props.get_any<TensorXi>("coords");
+            if (c.ndim() != 2 || c.shape(1) != 3)
+                Throw("nanovdbvolume: \"coords\" must be a TensorXi of shape (n, 3): one index "
+                      "coordinate (x, y, z) per voxel");
+            size_t n = c.shape(0);
+            uint32_t channels = v.ndim() == 2 ? (uint32_t) v.shape(1) : 1;
+            if (v.ndim() < 1 || v.ndim() > 2 || v.shape(0) != n)
+                Throw("nanovdbvolume: \"values\" must be a TensorXf of shape (n,) or (n, "
+                      "channels) with n = %zu, as many as \"coords\" has rows", n);
+            label = tfm::format("values: %zu voxels, %u channels", n, channels);
+            values = host_copy<float>(v.array());
+            coords = host_copy<int32_t>(c.array());
+            sparse.coords = coords.data();
+            sparse.values = values.data();
+            sparse.count = n;
+            sparse.channels = channels;
+        }
+    }
+
+    /// Builds the grid; for a dense source also returns its box
+    std::pair<nanovdb_loader::BuiltGrid, std::optional<nanovdb_loader::IndexBox>>
+    build(const nanovdb_loader::BuildOptions &options) const {
+        if (!is_dense)
+            return { nanovdb_loader::build_grid(label, sparse, options), std::nullopt };
+        nanovdb_loader::IndexBox box;
+        for (int k = 0; k < 3; ++k) {
+            box.lo[k] = 0;
+            box.hi[k] = int32_t(dense.size[k]) - 1;
+        }
+        return { nanovdb_loader::build_grid(label, dense, options), box };
+    }
+
+private:
+    void set_dense(const float *ptr, std::array<uint32_t, 3> size, uint32_t channels) {
+        is_dense = true;
+        dense.values = ptr;
+        for (int k = 0; k < 3; ++k)
+            dense.size[k] = size[k];
+        dense.channels = channels;
+    }
+
+    /// A JIT array's values on the host (one transfer), or a copy of a
+    /// scalar variant's buffer
+    template <typename T, typename Array> static std::vector<T> host_copy(const Array &a) {
+        std::vector<T> out(dr::width(a));
+        if (out.empty())
+            return out;
+        if constexpr (dr::is_jit_v<Array>) {
+            auto detached = dr::detach(a);
+            dr::eval(detached);
+            dr::store(out.data(), detached);
+        } else {
+            std::memcpy(out.data(), a.data(), out.size() * sizeof(T));
+        }
+        return out;
+    }
+};
+
+NAMESPACE_END(mitsuba)
