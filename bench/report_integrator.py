@@ -14,8 +14,8 @@ import os
 import numpy as np
 
 import metrics
-from report import (error_time_figure, find, fmt, integrator_of, mark, png_name, save_figure,
-                    timing_fields)
+from report_common import (error_time_figure, find, fmt, integrator_of, mark, png_name,
+                           save_figure, timing_fields)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 LOG = os.path.join(HERE, "INTEGRATOR_LOG.md")

@@ -23,7 +23,6 @@ Measurements, not tests: nothing here asserts a target.
 import argparse
 import csv
 import os
-import re
 import subprocess
 import sys
 import time
@@ -85,6 +84,8 @@ def main():
     mi.file_resolver().prepend(a.build)
     from scene import turntable_scene
     from metrics import rmse
+    sys.path.insert(0, os.path.join(ROOT, "python"))
+    from nanovdb_mitsuba.facts import volume_facts
 
     vdb2nvdb = os.path.join(a.build, "bin", "vdb2nvdb")
     data_dir = os.path.join(HERE, "data", "value_types")
@@ -125,13 +126,12 @@ def main():
         ref_var_of_mean = ((r1 - r2) ** 2) / 4.0
         for t in TYPES:
             vol, integrator = load(t, files[t])
-            s = str(vol)
             file_bytes = os.path.getsize(files[t])
             if t == "dense":
                 backend = file_bytes - 48  # the dense floats
             else:
-                backend = int(re.search(r"backend_bytes = (\d+)", s).group(1)) + \
-                    int(re.search(r"majorant_bytes = (\d+)", s).group(1))
+                facts = volume_facts(vol)
+                backend = facts["backend_bytes"] + facts["majorant_bytes"]
             render(vol, integrator, a.spp[0], 7)  # compiles the kernels
             for spp in a.spp:
                 secs, img = render(vol, integrator, spp, 11)

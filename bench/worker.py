@@ -170,8 +170,8 @@ def paths_and_counts(mi, dr, spec):
     """Lookups and majorant-walk steps, counted on a render of their own:
     count_lookups adds an atomic add per lookup and walk step, so the timed
     renders never count. A fresh volume with count_lookups, one turntable at
-    the timing spp (seed 0). Returns every `NAME_count = N,` line of
-    str(volume) (lookup_count, walk_step_count and the steps by cell) and the
+    the timing spp (seed 0). Returns the volume's counters (volume_facts:
+    lookup_count, walk_step_count and the steps by cell) and the
     camera paths of that render (pixels x spp x sensors), to divide them by.
     nanovdbvolume only (gridvolume cannot count)."""
     from scene import turntable_scene, volume_dict
@@ -180,12 +180,13 @@ def paths_and_counts(mi, dr, spec):
     scene = mi.load_dict(turntable_scene(vol, spec["res"], spec["spp"],
                                          spec.get("integrator", "volpath")))
     render_turntable(mi, dr, scene, spec["spp"], 0)
-    text = str(vol)
-    counts = {k: int(v) for k, v in re.findall(r"^\s*(\w+_count) = (\d+),", text, re.M)}
+    from nanovdb_mitsuba import volume_facts
+    facts = volume_facts(vol)
+    counts = {k: v for k, v in facts.items() if k.endswith("_count")}
     for key in ("lookup_count", "walk_step_count"):
         if key not in counts:
-            raise SystemExit(f"{spec['volume']}: no '{key}' in str(volume) with count_lookups "
-                             f"(a plugin build without counting?):\n{text}")
+            raise SystemExit(f"{spec['volume']}: no '{key}' in the volume's facts with "
+                             f"count_lookups (a plugin build without counting?): {facts}")
     return {"counts": counts,
             "count_paths": spec["res"] ** 2 * spec["spp"] * len(scene.sensors())}
 

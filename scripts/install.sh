@@ -17,18 +17,29 @@ done
 
 APT_PACKAGES=(
   cmake ninja-build g++ pkg-config
-  python3-venv        # tests/test_pip_install.py: a fresh virtual environment (ensurepip)
   libnanovdb-dev      # NanoVDB 32.4 headers incl. PNanoVDB.h (the reference we translate)
   libopenvdb-dev libboost-dev libtbb-dev libimath-dev  # OpenVDB 10: test grids, vdb2nvdb
   libblosc-dev zlib1g-dev   # .nvdb codecs
-  doctest-dev
   libllvm19           # Dr.Jit's LLVM backend fails with Debian's default libLLVM 14/15
+)
+# Only the tests use these (the quickstart, --no-tests, leaves them out)
+TEST_APT_PACKAGES=(
+  python3-venv        # tests/test_pip_install.py: a fresh virtual environment (ensurepip)
+  doctest-dev
   clang-14 libclang-rt-14-dev  # libFuzzer + ASan/UBSan runtimes for tests/fuzz
 )
 # The build's requirements (pyproject.toml [build-system]) are installed here
 # and the build uses them (--no-build-isolation): no second download.
-PIP_PACKAGES=(mitsuba==3.9.1 drjit==1.5.0 nanobind==3.1.0 scikit-build-core==1.1.2
-              numpy==2.4.6 pytest==9.2.0 matplotlib==3.11.2)
+PIP_PACKAGES=(mitsuba==3.9.1 drjit==1.5.0 nanobind==3.1.0 scikit-build-core==1.1.2 numpy==2.4.6)
+TEST_PIP_PACKAGES=(pytest==9.2.0 matplotlib==3.11.2)  # the tests and the benchmarks
+
+if grep -qs "^NVDB_BUILD_TESTS:BOOL=ON" build/CMakeCache.txt; then
+  BUILD_TESTS=ON  # keep a test build a test build (no flip-flopping of build/)
+fi
+if [ "$BUILD_TESTS" = ON ]; then
+  APT_PACKAGES+=("${TEST_APT_PACKAGES[@]}")
+  PIP_PACKAGES+=("${TEST_PIP_PACKAGES[@]}")
+fi
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -52,20 +63,16 @@ PIP_FLAGS=(--disable-pip-version-check)
 if [ -f "$("$PYTHON" -c 'import sysconfig; print(sysconfig.get_path("stdlib"))')/EXTERNALLY-MANAGED" ]; then
   PIP_FLAGS+=(--break-system-packages)
 fi
-if ! "$PYTHON" - <<'PY' 2>/dev/null
+if ! "$PYTHON" - "${PIP_PACKAGES[@]}" <<'PY' 2>/dev/null
 import importlib.metadata as md, sys
-want = {"mitsuba": "3.9.1", "drjit": "1.5.0", "scikit-build-core": "1.1.2"}
-sys.exit(0 if all(md.version(k) == v for k, v in want.items()) and
-         all(md.version(k) for k in ("nanobind", "numpy", "pytest", "matplotlib")) else 1)
+want = dict(p.split("==") for p in sys.argv[1:])
+sys.exit(0 if all(md.version(k) == v for k, v in want.items()) else 1)
 PY
 then
   echo "== pip install ${PIP_PACKAGES[*]}"
   "$PYTHON" -m pip install -q "${PIP_FLAGS[@]}" "${PIP_PACKAGES[@]}"
 fi
 
-if grep -qs "^NVDB_BUILD_TESTS:BOOL=ON" build/CMakeCache.txt; then
-  BUILD_TESTS=ON  # keep a test build a test build (no flip-flopping of build/)
-fi
 echo "== pip install . (build in build/, tests ${BUILD_TESTS})"
 # (not -q: pip prints the build's output when it fails; --config-settings, not -C: Debian 12's pip 23.0 lacks -C)
 "$PYTHON" -m pip install "${PIP_FLAGS[@]}" --no-build-isolation --no-deps \

@@ -29,6 +29,11 @@ for t in fp4 fp8 fp16 fpn half vec3f; do
 done
 [ -f build-fuzz/seeds/single_voxel_none.nvdb ] ||
   build/bin/nvdb_make_test_grid single_voxel build-fuzz/seeds/single_voxel_none.nvdb >/dev/null
+# A root tile key that no coordinate has (bit 20 set): validation refuses it;
+# accepted, the root index would serve the tile and PNanoVDB never find it
+[ -f build-fuzz/seeds/single_voxel_key_bit20.nvdb ] ||
+  build/bin/nvdb_make_test_grid single_voxel build-fuzz/seeds/single_voxel_key_bit20.nvdb \
+    --root-key-bit 20 >/dev/null
 shared="${NVDB_SHARED_DATA:-../shared/data}"
 build-fuzz/bin/fuzz_nvdb -max_total_time="${NVDB_FUZZ_SECONDS:-20}" -print_final_stats=1 \
   build-fuzz/corpus build-fuzz/seeds $( [ -d "$shared" ] && echo "$shared" ) 2>&1 | tail -n 8

@@ -68,6 +68,8 @@ def has_llvm():
 def _setup_variant(name):
     if name not in mi.variants():
         pytest.skip(f"variant {name} is not part of this Mitsuba build")
+    if TEST_VARIANTS and name not in TEST_VARIANTS:
+        pytest.skip(f"{name}: not in NVDB_TEST_VARIANTS (a build of some variants)")
     if name.startswith("cuda") and not has_cuda():
         pytest.skip(f"{name}: no CUDA device on this machine")
     if name.startswith("llvm") and not has_llvm():

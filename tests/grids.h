@@ -1,9 +1,9 @@
-// Named test volumes for the nanovdb-mitsuba test suites.
+// Named test volumes for the nanovdb-mitsuba test suites, as NanoVDB grids.
 //
-// Every grid is built with OpenVDB (openvdb::FloatGrid, tiles added through
-// tree().addTile(level, ...) so that every NanoVDB node level and root tiles
-// occur) and converted by NanoVDB's own nanovdb::openToNanoVDB (float values,
-// no quantization). These grids are the independent inputs of
+// The grids themselves are nvdb_testdata's (tools/testdata/test_grids.h: built
+// with OpenVDB, tiles at every NanoVDB node level and root tiles), converted
+// here by NanoVDB's own nanovdb::openToNanoVDB (float values, no
+// quantization). These grids are the independent inputs of
 //  * the doctest suite comparing the Dr.Jit translation of PNanoVDB's read path
 //    with PNanoVDB itself, read for read on query_coords(), and
 //  * the pytest suite rendering each grid with the nanovdbvolume plugin and
@@ -24,17 +24,14 @@
 #include <nanovdb/util/GridHandle.h>
 #include <nanovdb/util/HostBuffer.h>
 
+#include "testdata/test_grids.h"
+
 namespace nvdb_test {
 
-/// Names of all cases, in a stable order.
-const std::vector<std::string> &grid_names();
-
-/// Builds the named case with OpenVDB. `scale` (>= 1) multiplies the linear
-/// size of the cases where that makes sense (fog_sphere, noisy_cloud,
-/// constant_cube, random_cube, nonzero_background); the others ignore it.
-/// Throws std::invalid_argument for an unknown name (listing the valid names)
-/// or a scale below 1.
-openvdb::FloatGrid::Ptr make_vdb_grid(const std::string &name, int scale = 1);
+/// Names of all cases, in a stable order; and the named case built with
+/// OpenVDB (tools/testdata/test_grids.h).
+using nvdb_testdata::grid_names;
+using nvdb_testdata::make_vdb_grid;
 
 /// nanovdb::openToNanoVDB(*make_vdb_grid(name, scale)): float values, no
 /// quantization, NanoVDB's default statistics and checksum.
@@ -42,8 +39,8 @@ nanovdb::GridHandle<nanovdb::HostBuffer> make_nano_grid(const std::string &name,
                                                         int scale = 1);
 
 /// Query coordinates for read-for-read comparisons, deterministic for a seed
-/// (own splitmix64 generator, no std:: distributions, so the same on every
-/// platform). Each coordinate is drawn from one of
+/// (testdata/seeded.h's splitmix64, no std:: distributions, so the same on
+/// every platform). Each coordinate is drawn from one of
 ///  (1) active values: an active voxel of a leaf, or a point inside a tile
 ///      (levels 1-3) that is active or holds a non-background value;
 ///  (2) a random point of the index bbox grown by 16 voxels;

@@ -23,6 +23,7 @@
 // Prints one line: bbox, bytes.
 
 #include "grids.h"
+#include "testdata/seeded.h"
 
 #include <nanovdb/util/IO.h>
 #include <nanovdb/util/OpenToNanoVDB.h>
@@ -36,13 +37,6 @@
 #include <vector>
 
 namespace {
-
-uint64_t splitmix64(uint64_t x) {
-    x += 0x9E3779B97F4A7C15ull;
-    x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-    x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-    return x ^ (x >> 31);
-}
 
 float parse_float(const std::string &s) {
     char *end = nullptr;
@@ -135,9 +129,10 @@ int main(int argc, char **argv) {
                     for (int64_t k = lo[2]; k <= hi[2]; ++k) {
                         float v;
                         if (fill == "random") {
+                            using nvdb_testdata::splitmix64;
                             const uint64_t h = splitmix64(seed ^ splitmix64(uint64_t(i) ^
                                                 splitmix64(uint64_t(j) ^ splitmix64(uint64_t(k)))));
-                            const double u = double(h >> 11) * 0x1.0p-53;
+                            const double u = nvdb_testdata::unit_interval(h);
                             v = float(std::exp(llo + u * (lhi - llo)));
                         } else if (fill == "ramp") {
                             v = float(i - lo[0]);

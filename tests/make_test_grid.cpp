@@ -4,10 +4,14 @@
 //
 //   nvdb_make_test_grid NAME OUT.nvdb [--dense OUT.vol] [--codec none|zip|blosc]
 //                       [--scale N] [--type float|fp4|fp8|fp16|fpn|half|vec3f]
+//                       [--root-key-bit 20|41|62|63]
 //
 // --type: the grid in another value type (tests/typed_grids.h); --dense then
 // exports its decoded values (NanoVDB's accessor; Half: F16C). Half grids are
 // written as a raw grid buffer (NanoVDB 32.4's writer cannot build them).
+// --root-key-bit: a hostile file (a fuzzer seed, float grids): that bit set
+// in the first root tile's key, one that no coordinate has (the loader must
+// refuse it: an index by block would find the tile, PNanoVDB never does).
 //   nvdb_make_test_grid --list
 //
 // Prints one summary line per grid; exits 2 on bad arguments, 1 on failure.
@@ -31,7 +35,7 @@ namespace {
 
 const char *usage =
     "usage: nvdb_make_test_grid NAME OUT.nvdb [--dense OUT.vol] [--codec none|zip|blosc] "
-    "[--scale N] [--type float|fp4|fp8|fp16|fpn|half|vec3f]\n"
+    "[--scale N] [--type float|fp4|fp8|fp16|fpn|half|vec3f] [--root-key-bit 20|41|62|63]\n"
     "       nvdb_make_test_grid --list\n";
 
 int bad_args(const std::string &message) {
@@ -50,7 +54,7 @@ std::string valid_names() {
 
 int main(int argc, char **argv) {
     std::string name, out_path, dense_path, codec_name = "none", type = "float";
-    int scale = 1;
+    int scale = 1, key_bit = -1;
     bool have_name = false, have_out = false;
 
     for (int i = 1; i < argc; ++i) {
@@ -91,6 +95,12 @@ int main(int argc, char **argv) {
             if (s.empty() || *end != '\0' || v < 1 || v > 64)
                 return bad_args("--scale must be an integer in [1, 64], got \"" + s + "\"");
             scale = int(v);
+        } else if (arg == "--root-key-bit") {
+            std::string s;
+            if (!value(s) || (s != "20" && s != "41" && s != "62" && s != "63"))
+                return bad_args("--root-key-bit needs 20, 41, 62 or 63 (the bits no key of a "
+                                "coordinate has)");
+            key_bit = std::stoi(s);
         } else if (arg.size() > 1 && arg[0] == '-') {
             return bad_args("unknown option \"" + arg + "\"");
         } else if (!have_name) {
@@ -116,6 +126,9 @@ int main(int argc, char **argv) {
     else
         return bad_args("unknown codec \"" + codec_name + "\"; valid codecs: none, zip, blosc");
 
+    if (key_bit >= 0 && type != "float")
+        return bad_args("--root-key-bit is for float grids");
+
     bool known = false;
     for (const std::string &n : nvdb_test::grid_names())
         known |= n == name;
@@ -139,6 +152,12 @@ int main(int argc, char **argv) {
                 " voxels (limit " + std::to_string(nvdb_test::max_dense_voxels) +
                 "); nothing written");
 
+        if (key_bit >= 0) {
+            auto &root = typed.handle.grid<float>()->tree().root();
+            if (root.tileCount() == 0)
+                throw std::invalid_argument("--root-key-bit: the grid has no root tile");
+            root.data()->tile(0)->key |= uint64_t(1) << key_bit;
+        }
         if (type == "half") {
             if (codec != nanovdb::io::Codec::NONE)
                 throw std::invalid_argument("half grids are written raw, without a codec");

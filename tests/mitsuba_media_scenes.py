@@ -18,8 +18,16 @@ procedural sky.
 - "ball": sphere_tiny.obj, a sphere of radius 0.757 at (0, -0.104, 0).
 - the backdrop: a floor at y = -1.045 and a wall at z = -3.122, checkered
   0.2 / 0.4 (background.obj with its checkerboard texture).
+- "ball": sphere_tiny.obj, an analytic sphere here.
+- torus1 / torus2: tori of the same centre, axis and radii as the originals
+  (torus1: R 0.567, r 0.142; torus2: R 1.087, r 0.272).
+- "panel": angled_cube.obj, a thin box (2.39 x 0.72 x 0.16) given by its
+  centre and edges.
 - camera: perspective from (0, 0.5, 4) towards (0, -0.5, 0), near clip 1,
-  box filter, 48^2 by default.
+  box filter, 48^2 by default; max_depth 6 (16 for the two scenes without
+  the backdrop), as the scenes' includes set them.
+
+SCENES lists the 12 scenes of Mitsuba 3.9.1's folder; scene() builds one.
 """
 
 import math
@@ -148,7 +156,7 @@ def sky_bitmap():
             img[i] = np.array([0.4, 0.55, 0.9]) * (0.6 + 0.4 * up) + 0.3 * (1 - up)
         else:
             img[i] = np.array([0.25, 0.22, 0.2]) * (1 + up * 0.5)
-    img[6:9, 20:24] = [40.0, 34.0, 26.0]
+    img[6:9, 20:24] = [8.0, 6.8, 5.2]
     return mi.Bitmap(img)
 
 
@@ -227,3 +235,177 @@ def hetero_scene(name, directory, integrator, plugin="gridvolume", res=48, spp=6
     if environment:
         scene["sky"] = {"type": "envmap", "bitmap": sky_bitmap()}
     return scene
+
+
+def torus_obj(directory, name, center, axis, major, minor):
+    """A torus about `axis` (unit vector) through `center`."""
+    path = Path(directory) / f"{name}.obj"
+    if not path.exists():
+        axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+        # an orthonormal frame (u, v, axis)
+        u = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(axis, u)
+        segments, sides = 48, 24
+        vertices, faces = [], []
+        for i in range(segments):
+            a = 2 * math.pi * i / segments
+            for j in range(sides):
+                b = 2 * math.pi * j / sides
+                r = major + minor * math.cos(b)
+                p = (np.asarray(center) + r * (math.cos(a) * u + math.sin(a) * v)
+                     + minor * math.sin(b) * axis)
+                vertices.append(tuple(p))
+        for i in range(segments):
+            for j in range(sides):
+                a0, b0 = i * sides + j, ((i + 1) % segments) * sides + j
+                a1 = i * sides + (j + 1) % sides
+                b1 = ((i + 1) % segments) * sides + (j + 1) % sides
+                faces += [(a0, b0, b1), (a0, b1, a1)]
+        write_obj(path, vertices, faces)
+    return str(path)
+
+
+def panel_obj(directory, offset=(0.0, 0.0, 0.0)):
+    """angled_cube.obj: a thin box from a corner and its three edges."""
+    path = Path(directory) / f"panel_{offset[0]:g}.obj"
+    if not path.exists():
+        corner = np.array([1.885, -0.939, 0.487]) + np.asarray(offset)
+        edges = [np.array([-1.059, 1.995, -0.801]), np.array([-0.127, -0.454, -0.551]),
+                 np.array([0.138, 0.032, -0.060])]
+        vertices = [tuple(corner + i * edges[0] + j * edges[1] + k * edges[2])
+                    for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+        idx = lambda i, j, k: 4 * i + 2 * j + k
+        faces = []
+        for axis in range(3):
+            for side in (0, 1):
+                quad = []
+                for a, b in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    ijk = [0, 0, 0]
+                    ijk[axis] = side
+                    ijk[(axis + 1) % 3], ijk[(axis + 2) % 3] = a, b
+                    quad.append(idx(*ijk))
+                faces += [(quad[0], quad[1], quad[2]), (quad[0], quad[2], quad[3])]
+        write_obj(path, vertices, faces)
+    return str(path)
+
+
+BALL = {"type": "sphere", "center": [0.0, -0.1043, 0.0], "radius": 0.757}
+
+SCENES = ["hetero_sigmat", "hetero_sigmat_albedo", "hetero_spectral_sigmat",
+          "hetero_spectral_sigmat_no_scattering", "homo_area_light", "homo_dielectric_envmap",
+          "homo_emitter_inside_medium", "homo_null_envmap", "homo_obj_inside_medium",
+          "homo_roughdielectric_spot", "homo_spectral_sigmat", "surf_area_light"]
+
+# The integrator each scene's file names (volpath unless it says volpathmis)
+SCENE_INTEGRATOR = {name: "volpathmis" if name in ("hetero_spectral_sigmat",
+                                                   "homo_spectral_sigmat") else "volpath"
+                    for name in SCENES}
+
+
+def homogeneous(scale, sigma_t, albedo):
+    return {"type": "homogeneous", "scale": scale,
+            "sigma_t": {"type": "rgb", "value": list(sigma_t)},
+            "albedo": {"type": "rgb", "value": list(albedo)},
+            "phase": {"type": "isotropic"}}
+
+
+def water(kind="thindielectric"):
+    return {"type": kind, "int_ior": "water", "ext_ior": "air"}
+
+
+def scene(name, directory, integrator, plugin="gridvolume", res=48, spp=64, volume_args=None):
+    """Scene `name` of SCENES. `integrator`: a plugin name (max_depth as the
+    scene's) or a dict; `plugin`: the grid volume plugin of the
+    heterogeneous scenes (nanovdbvolume gets gridvolume's data and, by
+    default, its edge convention)."""
+    no_bg = name in ("homo_dielectric_envmap", "homo_roughdielectric_spot")
+    if isinstance(integrator, str):
+        integrator = {"type": integrator, "max_depth": 16 if no_bg else 6}
+    if name.startswith("hetero") and name != "hetero_spectral_sigmat_no_scattering":
+        return hetero_scene(name, directory, integrator, plugin, res, spp,
+                            volume_args=volume_args)
+    d = {"type": "scene", "integrator": integrator, "sensor": camera(res, spp)}
+    if not no_bg:
+        d.update(backdrop())
+    sky = {"type": "envmap", "bitmap": sky_bitmap()}
+    pedestal = {"type": "obj", "filename": pedestal_obj(directory)}
+    ball = dict(BALL)
+    if name == "hetero_spectral_sigmat_no_scattering":
+        med = {"type": "heterogeneous", "scale": 5.0, "albedo": {"type": "rgb", "value": [0, 0, 0]},
+               "sigma_t": {"type": "constvolume", "value": {"type": "rgb", "value": [0.5, 0.4, 0.3]},
+                           "to_world": mi.ScalarTransform4f().translate([-0.5, -0.5, -0.5])},
+               "phase": {"type": "isotropic"}}
+        d.update(sky=sky, cube=medium_cube(med),
+                 pedestal={**pedestal, "bsdf": {"type": "diffuse"}})
+    elif name == "homo_area_light":
+        med = homogeneous(2.5, (1, 1, 1), (0.99, 0.999, 0.99))
+        d.update(ball={**ball, "bsdf": {"type": "null"}, "interior": med},
+                 pedestal={**pedestal, "bsdf": water(), "interior": med},
+                 panel={"type": "obj", "filename": panel_obj(directory, (0.8, 0, 0)),
+                        "bsdf": {"type": "diffuse", "reflectance": 0.0},
+                        "emitter": {"type": "area", "radiance": {
+                            "type": "rgb", "value": [18.387, 10.9873, 8.75357]}}})
+    elif name == "homo_dielectric_envmap":
+        med = homogeneous(0.5, (1, 1, 1), (0.99, 0.7, 0.99))
+        d.update(sky=sky, ball={**ball, "bsdf": water("dielectric"), "interior": med},
+                 pedestal={**pedestal, "bsdf": water("dielectric"), "interior": med})
+    elif name == "homo_emitter_inside_medium":
+        med = homogeneous(5.0, (1, 1, 1), (0.99, 0.99, 0.999))
+        d.update(sky={**sky, "scale": 0.4},
+                 ball={**ball, "bsdf": water(), "interior": med},
+                 pedestal={**pedestal, "bsdf": water(), "interior": med},
+                 torus1={"type": "obj", "bsdf": {"type": "diffuse", "reflectance": 0.0},
+                         "filename": torus_obj(directory, "torus1", (-0.07, 0.1305, -0.0892),
+                                               (-0.141, 0.618, 0.773), 0.567, 0.142),
+                         "emitter": {"type": "area", "radiance": {
+                             "type": "spectrum",
+                             "value": [(400, 0.0), (500, 0.3), (600, 0.8), (700, 1.1)]}}},
+                 torus2={"type": "obj", "filename": torus_obj(
+                     directory, "torus2", (-0.4803, 0.8545, -0.5486), (0.872, 0.487, 0.054),
+                     1.087, 0.272), "bsdf": {"type": "roughplastic", "diffuse_reflectance": {
+                         "type": "rgb", "value": [0.05, 0.2, 0.05]}}})
+    elif name == "homo_null_envmap":
+        med = homogeneous(3.0, (1, 1, 1), (0.99, 0.5, 0.5))
+        d.update(sky=sky, ball={**ball, "bsdf": {"type": "null"}, "interior": med},
+                 pedestal={**pedestal, "bsdf": {"type": "null"}, "interior": med})
+    elif name == "homo_obj_inside_medium":
+        med = homogeneous(2.0, (1, 1, 1), (0.99, 0.7, 0.7))
+        d.update(sky=sky, ball={**ball, "bsdf": water(), "interior": med},
+                 pedestal={**pedestal, "bsdf": water(), "interior": med},
+                 torus1={"type": "obj", "filename": torus_obj(
+                     directory, "torus1", (-0.07, 0.1305, -0.0892), (-0.141, 0.618, 0.773),
+                     0.567, 0.142), "bsdf": {"type": "roughplastic", "diffuse_reflectance": {
+                         "type": "rgb", "value": [0.9, 0.99, 0.97]}}},
+                 torus2={"type": "obj", "filename": torus_obj(
+                     directory, "torus2", (-0.4803, 0.8545, -0.5486), (0.872, 0.487, 0.054),
+                     1.087, 0.272), "bsdf": {"type": "diffuse", "reflectance": 1.0}})
+    elif name == "homo_roughdielectric_spot":
+        med = {"type": "homogeneous", "scale": 1.0,
+               "albedo": {"type": "rgb", "value": [0.101, 0.105, 0.109]},
+               "sigma_t": {"type": "rgb", "value": [0.102, 0.993, 0.103]},
+               "phase": {"type": "isotropic"}}
+        rough = {"type": "roughdielectric", "alpha": 0.3, "int_ior": 1.3, "ext_ior": "air"}
+        d.update(spot={"type": "spot", "intensity": {"type": "rgb", "value": [1.0, 1.0, 1.0]},
+                       "cutoff_angle": 60.0,
+                       "to_world": mi.ScalarTransform4f().look_at(
+                           origin=[0, -0.5, -2.0], target=[0, 0.5, 0], up=[0, 1, 0])},
+                 ball={**ball, "bsdf": rough, "interior": med},
+                 pedestal={**pedestal, "bsdf": rough, "interior": med})
+    elif name == "homo_spectral_sigmat":
+        med = homogeneous(10.0, (1, 0.2, 1), (0.5, 0.5, 0.99))
+        d.update(sky=sky, ball={**ball, "bsdf": {"type": "null"}, "interior": med},
+                 pedestal={**pedestal, "bsdf": {"type": "null"}, "interior": med})
+    elif name == "surf_area_light":
+        d.update(sky=sky,
+                 ball={**ball, "bsdf": {"type": "plastic", "diffuse_reflectance": {
+                     "type": "rgb", "value": [0.5, 0.3, 0.2]}}},
+                 pedestal={**pedestal, "bsdf": {"type": "roughplastic", "diffuse_reflectance": {
+                     "type": "rgb", "value": [0.2, 0.7, 0.7]}}},
+                 panel={"type": "obj", "filename": panel_obj(directory, (0.8, 0, 0)),
+                        "bsdf": {"type": "diffuse", "reflectance": 0.0},
+                        "emitter": {"type": "area", "radiance": {
+                            "type": "rgb", "value": [18.387, 10.9873, 8.75357]}}})
+    else:
+        raise ValueError(name)
+    return d

@@ -53,7 +53,8 @@ def test01_device_holds_the_grid_at_its_size(tmp_path, make_grid):
     u1 = gpu_used_bytes()
     held = u1 - u0
     # Dr.Jit's accounting: the mapped grid is the volume's one large variable
-    backend_bytes = int(str(vol).split("backend_bytes = ")[1].split(",")[0])
+    from nanovdb_mitsuba import volume_facts
+    backend_bytes = volume_facts(vol)["backend_bytes"]
     print(f"grid {size:,} B; NVML +{held:,} B ({held / size:.4f} x); "
           f"backend_bytes {backend_bytes:,} B ({backend_bytes / size:.6f} x)")
     assert size <= backend_bytes <= size + 64

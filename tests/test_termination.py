@@ -59,8 +59,7 @@ def trips(scene):
     return int(params["loop_bound_trips"]) if "loop_bound_trips" in params else 0
 
 def tracked(scene):
-    import re
-    return int(re.search(r"tracked media = (\d+)", str(scene.integrator())).group(1))
+    return int(mi.traverse(scene.integrator())["tracked_media"])
 
 out = []
 for job in cfg["jobs"]:

@@ -10,13 +10,12 @@ defaults: rtol 1e-5, atol 1e-8):
 - src/render/tests/test_freeze.py     -> test_freeze_medium_* (test12, with our
                                          plugins in the heterogeneous medium)
 
-Upstream writes .vol files and loads them by filename; nanovdbvolume reads
-NanoVDB files, so the ports pass the same values as gridvolume's in-memory
-inputs: a VolumeGrid read from the very .vol file (property "grid"), or the
-tensor itself ("data"), which nanovdbvolume turns into a sparse grid. Dense
-inputs clamp to their edge voxels by default, as gridvolume does
-(wrap_mode "clamp"). Each test runs the upstream assertion on gridvolume too
-(the control) and then on nanovdbvolume.
+Upstream writes .vol files and loads them by filename. nanovdbvolume reads
+them too (made sparse at load), and the ports use both of gridvolume's other
+inputs as well: a VolumeGrid read from the very .vol file (property "grid"),
+and the tensor itself ("data"). Dense inputs clamp to their edge voxels by
+default, as gridvolume does (wrap_mode "clamp"). Each test runs the upstream
+assertion on gridvolume too (the control) and then on nanovdbvolume.
 """
 
 import os
@@ -29,10 +28,6 @@ from conftest import _setup_variant
 
 PLUGINS = ["gridvolume", "nanovdbvolume"]
 
-# 6-channel volumes (SGGX's S): not yet in nanovdbvolume
-SIX_CHANNELS = [pytest.param("gridvolume"),
-                pytest.param("nanovdbvolume", marks=pytest.mark.xfail(
-                    strict=True, reason="6 channels: not supported yet"))]
 
 
 def load(plugin, grid, tmpdir, **kwargs):
@@ -115,7 +110,7 @@ def test_grid_04_trilinear_interpolation_boundary(variant, plugin, tmpdir):
     assert dr.allclose(vol.eval(it), 0.32)
 
 
-@pytest.mark.parametrize("plugin", SIX_CHANNELS)
+@pytest.mark.parametrize("plugin", PLUGINS)
 @pytest.mark.parametrize("variant", rgb_variants())
 def test_grid_05_trilinear_interpolation_6_channels(variant, plugin, tmpdir):
     _setup_variant(variant)
@@ -129,7 +124,7 @@ def test_grid_05_trilinear_interpolation_6_channels(variant, plugin, tmpdir):
     assert dr.allclose(vol.eval_6(it), (6 * 1 + 1 * 0.5 + 1 * 0.0) / 8)
 
 
-@pytest.mark.parametrize("plugin", SIX_CHANNELS)
+@pytest.mark.parametrize("plugin", PLUGINS)
 @pytest.mark.parametrize("variant", rgb_variants())
 def test_grid_06_eval_per_channel(variant, plugin, tmpdir):
     _setup_variant(variant)
@@ -207,14 +202,13 @@ def test_volume_texture_04_load_tensor(variant_llvm_ad_rgb, plugin, tmpdir):
 # ---------------------------------------------------------------------------
 
 def sggx_volume(plugin, values, tmpdir):
+    """S from a .vol file, as upstream (nanovdbvolume makes it sparse)"""
     path = os.path.join(str(tmpdir), "sggx.vol")
     mi.VolumeGrid(mi.TensorXf(values, (1, 1, 1, 6))).write(path)
-    if plugin == "gridvolume":
-        return {"type": "gridvolume", "filename": path}
-    return {"type": "nanovdbvolume", "grid": mi.VolumeGrid(path)}
+    return {"type": plugin, "filename": path}
 
 
-@pytest.mark.parametrize("plugin", SIX_CHANNELS)
+@pytest.mark.parametrize("plugin", PLUGINS)
 def test_sggx_01_create(variant_scalar_rgb, plugin, tmpdir):
     p = mi.load_dict({"type": "sggx",
                       "S": sggx_volume(plugin, [1.0, 1.0, 1.0, 0.0, 0.0, 0.0], tmpdir)})
@@ -225,33 +219,17 @@ def test_sggx_01_create(variant_scalar_rgb, plugin, tmpdir):
 @pytest.mark.parametrize("values", [[0.15, 1.0, 0.8, 0.0, 0.0, 0.0],
                                     [1.0, 0.35, 0.32, 0.52, 0.44, 0.2]],
                          ids=["02_chi2_simple", "03_chi2_skewed"])
-@pytest.mark.parametrize("plugin", SIX_CHANNELS)
+@pytest.mark.parametrize("plugin", PLUGINS)
 def test_sggx_chi2(variant_llvm_ad_rgb, plugin, values, tmpdir):
     from mitsuba.chi2 import ChiSquareTest, PhaseFunctionAdapter, SphericalDomain
     path = os.path.join(str(tmpdir), "sggx.vol")
     mi.VolumeGrid(mi.TensorXf(values, (1, 1, 1, 6))).write(path)
-    if plugin == "gridvolume":
-        xml = f'<volume type="gridvolume" name="S"><string name="filename" value="{path}"/></volume>'
-    else:
-        # A VolumeGrid cannot be written in XML: nanovdbvolume reads the
-        # values as a NanoVDB file written from them (two Vec3f grids)
-        xml = (f'<volume type="nanovdbvolume" name="S">'
-               f'<string name="filename" value="{sggx_nvdb(values, tmpdir)}"/></volume>')
+    # nanovdbvolume reads gridvolume's .vol files too (made sparse at load)
+    xml = f'<volume type="{plugin}" name="S"><string name="filename" value="{path}"/></volume>'
     sample_func, pdf_func = PhaseFunctionAdapter("sggx", xml)
     chi2 = ChiSquareTest(domain=SphericalDomain(), sample_func=sample_func, pdf_func=pdf_func,
                          sample_dim=3)
     assert chi2.run()
-
-
-def sggx_nvdb(values, tmpdir):
-    """A .nvdb of the 1x1x1 6-channel volume `values`: see
-    nanovdb_mitsuba.write_nvdb (two Vec3f grids, "S.xyz" and "S.uvw")."""
-    import numpy as np
-    import nanovdb_mitsuba
-    path = os.path.join(str(tmpdir), "sggx.nvdb")
-    nanovdb_mitsuba.write_nvdb(path, np.array(values, dtype=np.float32).reshape(1, 1, 1, 6),
-                               name="S")
-    return path
 
 
 # ---------------------------------------------------------------------------

@@ -7,13 +7,13 @@ majorant walk. The reads themselves are compared with PNanoVDB in
 tests/test_value_types.cpp.
 """
 
-import re
 
 import numpy as np
 import pytest
 import drjit as dr
 import mitsuba as mi
 
+from nanovdb_mitsuba import volume_facts
 from conftest import assert_renders_match, eval_points, load_dense, load_nvdb, read_vol
 from test_nanovdbvolume import point_count, random_points, render
 
@@ -28,7 +28,7 @@ def test01_nearest_equals_gridvolume(variants_rgb, make_grid, name, value_type):
     nano = load_nvdb(nvdb, filter_type="nearest")
     dense = load_dense(vol, filter_type="nearest")
     assert nano.max() == dense.max()
-    assert f"grid_type = {NANOVDB_NAME[value_type]}," in str(nano)
+    assert volume_facts(nano)["grid_type"] == NANOVDB_NAME[value_type]
     pts = random_points(point_count(), seed=3, lo=0.0, hi=0.999999)
     a, b = eval_points(nano, pts), eval_points(dense, pts)
     assert np.array_equal(a, b), f"{np.sum(a != b)} of {len(a)} lookups differ"
@@ -136,7 +136,7 @@ def test06_vec3f_equals_a_3_channel_gridvolume(colour_variant, make_grid, name, 
     nvdb, vol = make_grid(name, value_type="vec3f")
     nano = load_nvdb(nvdb, filter_type=filter_type)
     dense = load_dense(vol, filter_type=filter_type)
-    assert "grid_type = Vec3f," in str(nano)
+    assert volume_facts(nano)["grid_type"] == "Vec3f"
     assert nano.max() == dense.max()
     n = 20_000 if dr.is_jit_v(mi.Float) else 400
     pts = random_points(n, 7, 0.02, 0.98)
@@ -183,15 +183,14 @@ def test08_vec3f_memory(variant_llvm_ad_rgb, make_grid):
     # The backend holds the grid once (its bytes padded to 64); spectral
     # variants add one float per leaf voxel (the scales) and keep no colours
     nvdb, _ = make_grid("noisy_cloud", value_type="vec3f", dense=False)
-    s = str(load_nvdb(nvdb))
-    grid_bytes = int(re.search(r"\n  bytes = (\d+)", s).group(1))
-    backend = int(re.search(r"backend_bytes = (\d+)", s).group(1))
+    f = volume_facts(load_nvdb(nvdb))
+    grid_bytes, backend = f["grid_bytes"], f["backend_bytes"]
     assert backend == (grid_bytes + 63) // 64 * 64
-    assert "spectral_scale_bytes" not in s
+    assert f["spectral_scale_bytes"] == 0
     _setup_variant("llvm_ad_spectral")
-    s = str(load_nvdb(nvdb))
-    assert int(re.search(r"backend_bytes = (\d+)", s).group(1)) == backend
-    scale_bytes = int(re.search(r"spectral_scale_bytes = (\d+)", s).group(1))
+    f = volume_facts(load_nvdb(nvdb))
+    assert f["backend_bytes"] == backend
+    scale_bytes = f["spectral_scale_bytes"]
     # 2048 bytes per 6272-byte leaf (+ 4 per root tile): at most a third
     assert 0 < scale_bytes <= grid_bytes / 3, (scale_bytes, grid_bytes)
 

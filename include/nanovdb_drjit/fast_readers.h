@@ -21,6 +21,7 @@
 #pragma once
 
 #include <nanovdb_drjit/pnanovdb.h>
+#include <nanovdb_drjit/traverse.h>
 
 #include <type_traits>
 #include <vector>
@@ -119,6 +120,8 @@ template <typename UInt32> struct Reader {
     Coord<UInt32> block_min, block_dims; ///< ... and its box of 4096^3 blocks
     bool root_indexed = false;
     bool compact_offsets = false;
+
+    NVDB_TRAVERSE(root, root_table, block_min, block_dims)
 
     /// From a plan of the loader (duck-typed: root_word, compact_offsets,
     /// root_indexed, root_table, block_min, block_dims)

@@ -51,6 +51,8 @@
 #include <nanovdb_drjit/hdda.h>
 #include <nanovdb_drjit/majorant_table.h>
 #include <nanovdb_drjit/pnanovdb.h>
+#include <nanovdb_drjit/traversal.h>
+#include <nanovdb_drjit/traverse.h>
 
 #include <drjit/idiv.h>
 #include <drjit/if_stmt.h>
@@ -134,6 +136,9 @@ template <typename UInt32> struct MajorantGrid {
         return g;
     }
 
+    NVDB_TRAVERSE(table, leaf_begin, lower_begin, upper_begin, tile_begin, lower_slot, upper_slot,
+                  tile_slot, background, clamp, base, box_lo, box_hi, outside)
+
     /// The table as the reads take it (a JIT array or a host pointer)
     decltype(auto) words() const {
         if constexpr (dr::is_jit_v<UInt32>)
@@ -161,8 +166,14 @@ template <typename Float> struct MajorantWalk {
     UInt32 brick_slot;              ///< the last brick's slot (0: none)
     Float brick_M, brick_m;         ///< ... its bound and its smallest value
 
+    /// The start of the current cell along the ray
+    Float segment_begin() const { return hdda.tmin; }
+
+    /// The size of the current cell in voxels (8, 32, 128 or 4096)
+    Int32 cell_size() const { return hdda.dim; }
+
     /// The end of the current cell along the ray (its bound holds on
-    /// [hdda.tmin, segment_end()])
+    /// [segment_begin(), segment_end()])
     Float segment_end() const {
         return dr::minimum(dr::minimum(hdda.next.x(), hdda.next.y()),
                            dr::minimum(hdda.next.z(), hdda.tmax));
@@ -241,40 +252,36 @@ CellInfo<UInt32> cell_above_lower(const Buffer &buf, const Root &root,
     const dr::divisor<uint32_t> upper_words(c.upper_size / 4), lower_words(c.lower_size / 4);
 
     CellInfo<UInt32> out;
-    RootTileHandle<UInt32> tile = root_find_tile<GridType>(buf, root, ijk, active);
-    Mask found = active & (tile.address != 0u);
-    auto [delta, nonzero] = read_int64_as_word_delta(
-        buf, UInt32(tile.address + to_words(ROOT_TILE_OFF_CHILD)), found);
-    Mask has_upper = found & nonzero;
+    RootToUpper<UInt32> ru = root_get_upper<GridType>(buf, root, ijk, active);
 
     // The background, or a root tile without child: a 4096^3 cell
-    UInt32 tile_slot = g.tile_slot + ((tile.address - g.tile_begin) >> 3);
+    UInt32 tile_slot = g.tile_slot + ((ru.tile.address - g.tile_begin) >> 3);
     static_assert(c.root_tile_size == 32, "root tile slots assume 8-word tiles");
     out.dim = UInt32(4096u);
-    out.bound = dr::select(found, read_bound(g.words(), tile_slot, found & !has_upper),
+    out.bound = dr::select(ru.found,
+                           read_bound(g.words(), tile_slot, ru.found & !ru.has_upper),
                            g.background);
 
     // An upper node: one cell if thin, else its entry
-    UpperHandle<UInt32> upper = root_get_child(root, delta);
     UInt32 upper_slot =
-        g.upper_slot + UPPER_SLOTS * upper_words(UInt32(upper.address - g.upper_begin));
-    Float M_U = read_bound(g.words(), upper_slot, has_upper),
-          R_U = read_bound(g.words(), UInt32(upper_slot + 1u), has_upper),
-          m_U = read_bound(g.words(), UInt32(upper_slot + 2u), has_upper);
-    Mask thin_upper = has_upper & ((M_U - m_U) * 4096.f <= coarse_limit);
-    out.bound = dr::select(has_upper, M_U, out.bound);
-    Mask into_upper = has_upper & !thin_upper;
+        g.upper_slot + UPPER_SLOTS * upper_words(UInt32(ru.upper.address - g.upper_begin));
+    Float M_U = read_bound(g.words(), upper_slot, ru.has_upper),
+          R_U = read_bound(g.words(), UInt32(upper_slot + 1u), ru.has_upper),
+          m_U = read_bound(g.words(), UInt32(upper_slot + 2u), ru.has_upper);
+    Mask thin_upper = ru.has_upper & ((M_U - m_U) * 4096.f <= coarse_limit);
+    out.bound = dr::select(ru.has_upper, M_U, out.bound);
+    Mask into_upper = ru.has_upper & !thin_upper;
 
-    UInt32 n = upper_coord_to_offset(ijk);
-    Mask has_lower = upper_get_child_mask(buf, upper, n, into_upper);
-    Mask upper_tile = into_upper & !has_lower;
-    UInt32 upper_entry = upper_get_table_address<GridType>(upper, n);
+    UpperToLower<UInt32> ul = upper_get_lower<GridType>(buf, ru.upper, ijk, into_upper);
+    Mask upper_tile = into_upper & !ul.has_lower;
+    UInt32 upper_entry = upper_get_table_address<GridType>(ru.upper, ul.n);
     Float tile_value = tile_bound<GridType>(buf, upper_entry,
                                             read_uint32(buf, upper_entry, upper_tile), upper_tile);
     out.dim = dr::select(upper_tile, UInt32(128u), out.dim);
     out.bound = dr::select(upper_tile, dr::maximum(tile_value, R_U), out.bound);
 
-    LowerHandle<UInt32> lower = upper_get_child<GridType>(buf, upper, n, has_lower);
+    LowerHandle<UInt32> lower = ul.lower;
+    Mask has_lower = ul.has_lower;
     out.lower_slot = g.lower_slot +
                      LOWER_SLOTS * lower_words(UInt32(lower.address - g.lower_begin));
     out.lower = dr::select(has_lower, lower.address, UInt32(0u));

@@ -19,6 +19,7 @@
 #pragma once
 
 #include <nanovdb_drjit/pnanovdb.h>
+#include <nanovdb_drjit/traversal.h>
 
 #include <tuple>
 #include <type_traits>
@@ -36,31 +37,17 @@ template <typename UInt32> struct LowerOrValue {
     UInt32 address, level;         ///< value address/level (valid where !has_lower)
 };
 
-/// Traversal root -> upper -> lower, stopping at the lower node
-/// (the first two steps of root_get_value_address_and_level)
+/// Traversal root -> upper -> lower, stopping at the lower node (the two
+/// steps of traversal.h)
 template <uint32_t GridType = GRID_TYPE_FLOAT, typename Buffer, typename Root,
           typename UInt32 = decltype(Root::address)>
 LowerOrValue<UInt32> root_get_lower(const Buffer &buf, const Root &root,
                                     const Coord<UInt32> &ijk,
                                     const dr::mask_t<UInt32> &active) {
-    using Mask = dr::mask_t<UInt32>;
-    RootTileHandle<UInt32> tile = root_find_tile<GridType>(buf, root, ijk, active);
-    Mask found = active & (tile.address != 0u);
-    auto [delta, nonzero] = read_int64_as_word_delta(
-        buf, UInt32(tile.address + to_words(ROOT_TILE_OFF_CHILD)), found);
-    Mask has_upper = found & nonzero;
-    UpperHandle<UInt32> upper = root_get_child(root, delta);
-
-    UInt32 n = upper_coord_to_offset(ijk);
-    Mask has_lower = upper_get_child_mask(buf, upper, n, has_upper);
-    LowerHandle<UInt32> lower = upper_get_child<GridType>(buf, upper, n, has_lower);
-
-    UInt32 address = dr::select(found, root_tile_get_value_address<GridType>(tile),
-                                root_get_background_address<GridType>(root)),
-           level   = dr::select(found, UInt32(LEVEL_ROOT_TILE), UInt32(LEVEL_BACKGROUND));
-    address = dr::select(has_upper, upper_get_table_address<GridType>(upper, n), address);
-    level   = dr::select(has_upper, UInt32(LEVEL_UPPER), level);
-    return { lower.address, has_lower, address, level };
+    RootToUpper<UInt32> ru = root_get_upper<GridType>(buf, root, ijk, active);
+    UpperToLower<UInt32> ul = upper_get_lower<GridType>(buf, ru.upper, ijk, ru.has_upper);
+    AddressAndLevel<UInt32> above = above_lower<GridType>(root, ru, ul);
+    return { ul.lower.address, ul.has_lower, above.address, above.level };
 }
 
 /// The value addresses and levels of a stencil's 8 corners
@@ -137,7 +124,7 @@ StencilAddresses<UInt32> root_get_stencil(const Buffer &buf, const Root &root,
             Coord<UInt32> ijk =
                 coord_add<UInt32>(ijk0, corner & 1u, (corner >> 1) & 1u, (corner >> 2) & 1u);
             AddressAndLevel<UInt32> al =
-                root_get_value_address_and_level<GridType>(buf, root, ijk, far_[corner]);
+                value_address_and_level<GridType>(buf, root, ijk, far_[corner]);
             if constexpr (WithLevel) {
                 out[0][corner] = dr::select(far_[corner], al.address, out[0][corner]);
                 out[1][corner] = dr::select(far_[corner], al.level, out[1][corner]);

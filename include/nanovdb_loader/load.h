@@ -4,15 +4,24 @@
 //   read_grid (container.h) -> validate_grid (validation.h)
 //   -> apply_value_policy (values.h) -> plan_readers (reader_policy.h)
 //
+// and, for a renderer, the one call that also prepares its bounds:
+//
+//   prepare_grid: decode -> max_in_box (+ per channel) -> node_majorants
+//   -> mean_bound (majorants.h) -> spectral rewrite (spectral.h)
+//
 // The plugin runs it into the memory the backend will own, the fuzzer into a
 // guarded buffer; both get the same validated grid and the same reader plan.
 #pragma once
 
 #include <nanovdb_loader/container.h>
+#include <nanovdb_loader/majorants.h>
 #include <nanovdb_loader/reader_policy.h>
+#include <nanovdb_loader/spectral.h>
 #include <nanovdb_loader/validation.h>
 #include <nanovdb_loader/values.h>
 
+#include <array>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -35,5 +44,63 @@ DecodedGrid decode_grid(const std::string &path, const GridEntry &entry, void *d
 DecodedGrid decode_grid_bytes(const std::string &label, const std::string &name,
                               const void *src, uint64_t src_bytes, void *dst,
                               uint64_t dst_bytes, InvalidValues policy);
+
+/// Where prepare_grid() takes a grid from: a file's entry (decode_grid) or
+/// a grid in memory (decode_grid_bytes)
+struct GridSource {
+    std::string path;                  ///< the file, or the label naming the source in errors
+    const GridEntry *entry = nullptr;  ///< a file's grid; null: `bytes`
+    std::string name;                  ///< bytes: the grid's name in messages
+    const void *bytes = nullptr;
+    uint64_t size = 0;
+
+    static GridSource file(const std::string &path, const GridEntry &entry) {
+        return { path, &entry, entry.name, nullptr, 0 };
+    }
+    static GridSource memory(const std::string &label, const std::string &name,
+                             const void *bytes, uint64_t size) {
+        return { label, nullptr, name, bytes, size };
+    }
+};
+
+struct PrepareOptions {
+    InvalidValues invalid_values = InvalidValues::Error;
+    /// The volume's index box (inclusive); none: the grid's active box
+    std::optional<IndexBox> volume_box;
+    /// Lookups reach the one-voxel ring around the box (trilinear, not
+    /// clamped to the box): lookup_box()
+    bool ring = false;
+    /// Vec3f grids of a spectral variant: colours into coefficients (others
+    /// ignore it)
+    std::optional<SpectralConversion> spectral;
+};
+
+/// A decoded grid and what a renderer needs to bound its lookups
+struct PreparedGrid : DecodedGrid {
+    explicit PreparedGrid(DecodedGrid decoded) : DecodedGrid(std::move(decoded)) {}
+
+    IndexBox box{};          ///< lookup_box(): the coordinates lookups read
+    /// 1, or SpectralConversion::factor where the colours were converted:
+    /// what bounds the converted values from the colours' bounds
+    float spectral_factor = 1.f;
+    float max = 0.f;         ///< max_in_box(box) x spectral_factor: max()
+    /// max_in_box_per_channel(box) of the colours (not scaled); a scalar
+    /// grid's max_in_box three times
+    std::array<float, 3> max3{};
+    float grid_max = 0.f;    ///< ValueStats::max x spectral_factor
+    /// Of the stored values (the colours): the plugin scales them by
+    /// spectral_factor, and by 1 + 2^-20 for rounding, into its MajorantGrid
+    NodeMajorants majorants;
+    /// mean_bound(majorants, box, clamp = max / spectral_factor), as it
+    /// returns it: of the stored values (x spectral_factor for the plugin's)
+    double mean_bound = 0.0;
+    SpectralScales scales;   ///< where the colours were converted
+};
+
+/// decode_grid / decode_grid_bytes into `dst`, then the bounds (max of the
+/// lookup box, per channel, per node, their mean) and, last, the spectral
+/// rewrite. Throws Error naming the source.
+PreparedGrid prepare_grid(const GridSource &source, void *dst, uint64_t dst_bytes,
+                          const PrepareOptions &options);
 
 } // namespace nanovdb_loader

@@ -5,8 +5,20 @@
 // it, and summarises it in the same pass: its header fields (GridSummary) and
 // every value a lookup can return (ValueStats). Its result, ValidatedGrid, is
 // the only way to say "validated": every later step (value policy, reader
-// policy, upload) takes one, so a grid is validated exactly once and its
-// values are read exactly once here.
+// policy, bounds, upload) takes one, so a grid is validated exactly once.
+//
+// Values: validation decodes every value once, for ValueStats and each
+// leaf's min and max. The later passes read again only these:
+//  * sanitize_values() (invalid_values="clamp", for a grid that has invalid
+//    values): every value, rewritten where invalid;
+//  * max_in_box(): the tiles the box meets and the voxels of the leaves it
+//    cuts (whole leaves through their max); max_in_box_per_channel() (Vec3f):
+//    every voxel in the box;
+//  * node_majorants(): every tile value of the internal nodes and root, and
+//    the border voxels of the leaves whose max could raise a neighbour's
+//    bound; mean_bound(): the tile values of the nodes the box meets;
+//  * the spectral rewrite (spectral.h, Vec3f in spectral variants): every
+//    value, read and rewritten as coefficients.
 //
 // What is required:
 //  * magic "NanoVDB0"/"NanoVDB1", major version 32, a supported grid type
@@ -18,11 +30,15 @@
 //    arrays inside the grid, 32-byte aligned and disjoint (NanoVDB writes them
 //    back to back; overlapping regions would let one node's bytes be read as
 //    a node of another level);
+//  * every root tile key is one a coordinate has (PNanoVDB's coord_to_key
+//    leaves the top bit of each 21-bit field, and bit 63, clear): PNanoVDB
+//    never finds a tile with another key, while an index by block would;
 //  * every child offset (root tiles, upper and lower tables) lands exactly on
 //    a node of the level below, so a child can never be its own parent, the
 //    root, or a node of the wrong level, and the traversal's fixed depth
 //    allows no loop.
-// Every node array is visited once: O(nodes), no recursion.
+// Every node array is walked a bounded number of times: O(nodes), no
+// recursion.
 //
 // Which values (ValueStats): the background, root tiles without child,
 // upper/lower table entries whose child bit is 0, and all 512 values of
@@ -98,7 +114,9 @@ struct ValueStats {
  * A grid buffer that validate_grid() accepted. It does not own the
  * bytes: it is a view of the caller's buffer, valid while that buffer lives,
  * and the values may change only through sanitize_values() (values.h),
- * which keeps the statistics true.
+ * which keeps the statistics true, and, last, through the spectral rewrite
+ * (spectral.h), after which the grid holds coefficients and the statistics
+ * still describe its colours.
  */
 class ValidatedGrid {
 public:
@@ -126,6 +144,10 @@ public:
     /// leaf array)
     uint64_t leaf_containing(uint64_t byte) const;
 
+    /// The spectral rewrite (spectral.h) has turned its colours into
+    /// coefficients: values(), leaf_min() and leaf_max() describe the colours
+    bool holds_coefficients() const { return m_coefficients; }
+
 private:
     friend ValidatedGrid validate_grid(const std::string &, void *, uint64_t);
     friend ValidatedGrid validate_grid(const std::string &, const void *, uint64_t);
@@ -135,6 +157,7 @@ private:
     std::string m_path;
     uint8_t *m_data = nullptr;
     bool m_writable = false;   ///< validated from a mutable buffer (sanitize_values may write)
+    bool m_coefficients = false; ///< rewritten as spectral coefficients
     uint64_t m_bytes = 0;
     GridSummary m_summary;
     ValueStats m_values;

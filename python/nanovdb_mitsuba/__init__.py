@@ -13,8 +13,10 @@ later inherit it). That directory is:
 - the installed package itself (pip install .: nanovdb_mitsuba/plugins/);
 - otherwise, run from a clone (PYTHONPATH=python), the clone's build/.
 
-Also here: framed_scene() (scene.py: a volume framed and lit, as a scene
-dict), nanovdb-render (render.py) and the vdb2nvdb console script (tools.py).
+Also here: volume_facts() and integrator_facts() (facts.py: what a loaded
+plugin is, through mi.traverse), framed_scene() (scene.py: a volume framed
+and lit, as a scene dict), nanovdb-render (render.py) and the vdb2nvdb
+console script (tools.py).
 `python3 -m nanovdb_mitsuba` prints the plugin directory, for
 `mitsuba -a "$(python3 -m nanovdb_mitsuba)" scene.xml`.
 """
@@ -88,4 +90,5 @@ except RuntimeError as e:
     import warnings
     warnings.warn(str(e), RuntimeWarning, stacklevel=2)
 
+from .facts import integrator_facts, volume_facts  # noqa: E402,F401
 from .scene import default_scale, enclosing_cube, framed_scene  # noqa: E402,F401

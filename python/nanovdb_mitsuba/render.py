@@ -15,6 +15,7 @@ installing: PYTHONPATH=python python3 -m nanovdb_mitsuba.render ...
 """
 import argparse
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -25,6 +26,7 @@ if __package__ in (None, ""):  # run as a file: python3 python/nanovdb_mitsuba/r
     __package__ = "nanovdb_mitsuba"
 
 from nanovdb_mitsuba import setup, vdb2nvdb  # noqa: E402
+from nanovdb_mitsuba.facts import volume_facts  # noqa: E402
 from nanovdb_mitsuba.scene import framed_scene  # noqa: E402
 
 
@@ -56,15 +58,26 @@ def convert(path, grid, tmpdir):
     return out
 
 
-def volume_properties(volume):
-    """The `name = value` lines of a nanovdbvolume's to_string() (grid,
-    grid_type, grid_class, dimensions, max, ...), as strings"""
-    props = {}
-    for line in str(volume).splitlines():
-        if line.startswith("  ") and not line.startswith("   ") and " = " in line:
-            k, v = line.strip().split(" = ", 1)
-            props[k] = v.rstrip(",").strip('"')
-    return props
+def grid_names(path):
+    """The names of a .nvdb or .vdb file's grids, in file order (vdb2nvdb --list)"""
+    r = subprocess.run([vdb2nvdb(), "--list", path], stdout=subprocess.PIPE,
+                       stderr=subprocess.STDOUT, text=True)
+    names = []
+    for line in r.stdout.splitlines():
+        m = re.match(r'^\s+(\d+)\s+"(.*)"\s', line)
+        if m and int(m.group(1)) == len(names):
+            names.append(m.group(2))
+    return names
+
+
+def volume_properties(volume, path):
+    """A loaded nanovdbvolume's facts (nanovdb_mitsuba.volume_facts), with
+    "grid", the name of its grid in `path`"""
+    facts = volume_facts(volume)
+    index = facts["grid_index"]
+    names = grid_names(path) if index is not None else []
+    facts["grid"] = names[index] if index is not None and index < len(names) else ""
+    return facts
 
 
 def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
@@ -81,7 +94,7 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
         nvdb = convert(path, grid, tmp) if path.lower().endswith(".vdb") else path
         kw = dict(scale=scale, res=res, spp=spp, integrator=integrator, filter_type=filter_type)
         scene_dict, info = framed_scene(mi, nvdb, grid=grid if nvdb == path else "", **kw)
-        props = volume_properties(info["volume"])
+        props = volume_properties(info["volume"], nvdb)
         if nvdb == path and props.get("grid_class") == "level set":
             # A .nvdb level set: signed distances, not a density. Made a fog
             # volume as a .vdb's level set is (vdb2nvdb reads .nvdb too)
@@ -92,20 +105,20 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
             level_set = props
             nvdb = convert(path, props.get("grid"), tmp)
             scene_dict, info = framed_scene(mi, nvdb, **kw)
-            props = volume_properties(info["volume"])
-            if props.get("max") == "0" and level_set.get("max") != "0":
+            props = volume_properties(info["volume"], nvdb)
+            if props["max"] == 0 and level_set["max"] != 0:
                 # No inside: e.g. a "level set" whose background (the band's
                 # width) is 0. Its values as densities, negative ones as 0
                 print(f"{path}: the level set's fog volume is empty (background "
-                      f"{level_set.get('background')}: no inside to fill); rendering its values "
+                      f"{level_set['background']:g}: no inside to fill); rendering its values "
                       "as densities instead, negative ones as 0")
                 del scene_dict, info
                 nvdb = path
                 scene_dict, info = framed_scene(mi, path, grid=level_set.get("grid"),
                                                 invalid_values="clamp", **kw)
-                props = volume_properties(info["volume"])
+                props = volume_properties(info["volume"], nvdb)
                 info["level_set_values"] = True
-        if not quiet and props.get("dimensions") == "[1, 1, 1]" and props.get("max") == "0":
+        if not quiet and props["index_dims"] == [1, 1, 1] and props["max"] == 0:
             print(f"{path}: grid \"{props.get('grid')}\" holds no active voxels and a zero "
                   "background: the image shows only the lights")
         if props.get("grid_type") == "Vec3f":

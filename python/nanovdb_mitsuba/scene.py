@@ -10,12 +10,9 @@ def default_scale(volume, optical_depth=8.0):
     extent), the mean majorant being local_majorant_ratio x max() (what the
     plugin's per-node bounds say about the average density; it bounds the
     mean density from above, so the actual depth is lower)."""
-    s = str(volume)
+    from .facts import volume_facts
     vmax = volume.max()
-    ratio = 1.0
-    for line in s.splitlines():
-        if "local_majorant_ratio" in line:
-            ratio = float(line.split("=")[1].strip(" ,"))
+    ratio = volume_facts(volume)["local_majorant_ratio"]
     bb = volume.bbox()
     extent = sum(float(bb.max[k] - bb.min[k]) for k in range(3)) / 3.0
     mean = max(vmax * ratio, 1e-12)

@@ -9,9 +9,12 @@
 #include <mitsuba/render/scene.h>
 #include <mitsuba/render/sensor.h>
 #include <mitsuba/render/shape.h>
+#include <mitsuba/render/volume.h>
 
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
+
+#include "tracking.h"
 
 #include <atomic>
 #include <mutex>
@@ -50,8 +53,8 @@ Volumetric path tracer with local majorants (:monosp:`volpathlocal`)
    - |float|
    - A ``nanovdbvolume`` medium is tracked through its local majorants only
      if they average at most this fraction of its global majorant over the
-     volume (its ``to_string()`` shows the fraction as
-     ``local_majorant_ratio``: 0.06 for a real smoke, 1 for a cube of one
+     volume (``mi.traverse(volume)["local_majorant_ratio"]``, or
+     ``nanovdb_mitsuba.volume_facts``: 0.06 for a real smoke, 1 for a cube of one
      density). Above it the walk would cost its steps and save too few
      null collisions, and the medium is tracked as ``volpath`` does.
      (Default: 0.5: measured, the benchmark cloud at 0.31 renders 0.64x as
@@ -86,6 +89,18 @@ inside media, media inside dielectrics, nested media, emitter sampling with
 multiple importance sampling, RGB, spectral, monochrome and polarized
 variants.
 
+The code is Mitsuba 3.9.1's ``volpath`` (``src/integrators/volpath.cpp``,
+BSD-3-Clause), its structure, names and comments, with each difference
+marked ``// volpathlocal:``; the tracking itself is in
+``src/integrators/tracking.h``. A medium is tracked when its ``sigma_t``
+offers local majorants (``nanovdb_mitsuba/local_majorants.h``), it exposes
+a ``scale``, and its own global majorant is ``scale * max()`` (what
+``heterogeneous`` does).
+
+Every loop ends: each has a bound on its iterations that a valid ray cannot
+reach, and a lane it stops is counted (a warning after the render;
+``to_string()``; ``mi.traverse(integrator)["loop_bound_trips"]``).
+
 The estimators (for a tracked medium, with majorant :math:`\bar\mu(t)` =
 ``scale`` times the node's bound, extinction :math:`\mu_t`, scattering
 :math:`\mu_s`, null :math:`\mu_n = \bar\mu - \mu_t`, per channel):
@@ -111,15 +126,15 @@ The estimators (for a tracked medium, with majorant :math:`\bar\mu(t)` =
         'max_depth': 64
 
 */
+
 template <typename Float, typename Spectrum>
 class VolumetricPathLocalMajorants final : public MonteCarloIntegrator<Float, Spectrum> {
 public:
     MI_IMPORT_BASE(MonteCarloIntegrator, m_max_depth, m_rr_depth, m_hide_emitters)
-    MI_IMPORT_TYPES(Scene, Sampler, Sensor, Emitter, EmitterPtr, BSDF, BSDFPtr, Medium,
-                    MediumPtr, PhaseFunctionContext)
-    using Majorants = LocalMajorants<Float, Spectrum>;
-    using Walk = typename Majorants::Walk;
-    using WalkRay = typename Majorants::WalkRay;
+    MI_IMPORT_TYPES(Scene, Sampler, Sensor, Emitter, EmitterPtr, BSDF, BSDFPtr,
+                    Medium, MediumPtr, PhaseFunctionContext, Volume)
+    using Tracker = Tracking<Float, Spectrum>;
+    using TrackedMedium = typename Tracker::TrackedMedium;
 
     VolumetricPathLocalMajorants(const Properties &props) : Base(props) {
         m_coarse_depth = props.get<ScalarFloat>("coarse_optical_depth", 2.f);
@@ -133,6 +148,8 @@ public:
             m_trips = dr::zeros<UInt32>(LoopCount);
     }
 
+    // volpathlocal: which media to track, found anew for every render; the
+    // loop bounds' trips reported after it
     TensorXf render(Scene *scene, Sensor *sensor, UInt32 seed = 0, uint32_t spp = 0,
                     bool develop = true, bool evaluate = true) override {
         if (trip_counts_ready()) // trips of earlier renders not reported yet
@@ -148,86 +165,574 @@ public:
 
     void traverse(TraversalCallback *cb) override {
         Base::traverse(cb);
-        // How many lanes the loop bounds stopped so far (see LoopBound; per
-        // loop in to_string()): 0 unless something is wrong
+        // How many lanes the loop bounds stopped so far (per loop in
+        // to_string()): 0 unless something is wrong
         m_trip_total_host = 0;
         for (uint32_t n : trip_counts())
             m_trip_total_host += n;
         cb->put("loop_bound_trips", m_trip_total_host, ParamFlags::NonDifferentiable);
+        // How many media the last render tracked through the walk
+        m_tracked_host = (uint32_t) m_tracked.size();
+        cb->put("tracked_media", m_tracked_host, ParamFlags::NonDifferentiable);
     }
 
-    // =====================================================================
-    //  The path: volpath's, with tracked media sampled through the walk
-    // =====================================================================
+    //! @{ \name Sampling the RTE: volpath's path, tracked media by delta tracking
 
-    std::pair<Spectrum, Mask> sample(const Scene *scene, Sampler *sampler,
+    MI_INLINE
+    Float index_spectrum(const UnpolarizedSpectrum &spec, const UInt32 &idx) const {
+        Float m = spec[0];
+        if constexpr (is_rgb_v<Spectrum>) { // Handle RGB rendering
+            dr::masked(m, idx == 1u) = spec[1];
+            dr::masked(m, idx == 2u) = spec[2];
+        } else {
+            DRJIT_MARK_USED(idx);
+        }
+        return m;
+    }
+
+    std::pair<Spectrum, Mask> sample(const Scene *scene,
+                                     Sampler *sampler,
                                      const RayDifferential3f &ray_,
-                                     const Medium *initial_medium, Float * /* aovs */,
+                                     const Medium *initial_medium,
+                                     Float * /* aovs */,
                                      Mask active) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::SamplingIntegratorSample, active);
-        prepare(scene, false);
+        prepare(scene, false); // volpathlocal: a scene that render() did not see
 
-        // With a visible environment emitter every ray is valid; otherwise a
-        // ray is valid once it scatters
+        // If there is an environment emitter and emitters are visible: all rays will be valid
+        // Otherwise, it will depend on whether a valid interaction is sampled
         Mask valid_ray = !m_hide_emitters && (scene->environment() != nullptr);
 
+        // For now, don't use ray differentials
+        Ray3f ray = ray_;
+
+        // Tracks radiance scaling due to index of refraction changes
+        Float eta(1.f);
+
+        Spectrum throughput(1.f), result(0.f);
+        MediumPtr medium = initial_medium;
+        MediumInteraction3f mei = dr::zeros<MediumInteraction3f>();
+        Mask specular_chain = active && !m_hide_emitters;
+        UInt32 depth = 0;
+
         UInt32 channel = 0;
-        if constexpr (is_rgb_v<Spectrum>) {
+        if (is_rgb_v<Spectrum>) {
             uint32_t n_channels = (uint32_t) dr::size_v<Spectrum>;
             channel = (UInt32) dr::minimum(sampler->next_1d(active) * n_channels, n_channels - 1);
         }
 
-        struct PathState {
+        SurfaceInteraction3f si = dr::zeros<SurfaceInteraction3f>();
+        Mask needs_intersection = true;
+        Interaction3f last_scatter_event = dr::zeros<Interaction3f>();
+        Float last_scatter_direction_pdf = 1.f;
+
+        /* Set up a Dr.Jit loop (optimizes away to a normal loop in scalar mode,
+           generates wavefront or megakernel renderer based on configuration).
+           Register everything that changes as part of the loop here */
+        struct LoopState {
             Mask active;
             UInt32 depth;
             Ray3f ray;
-            Spectrum throughput, result;
+            Spectrum throughput;
+            Spectrum result;
             SurfaceInteraction3f si;
             MediumInteraction3f mei;
             MediumPtr medium;
-            Float eta;                        ///< radiance scaling by refraction
+            Float eta;
             Interaction3f last_scatter_event;
             Float last_scatter_direction_pdf;
-            Mask needs_intersection, specular_chain, valid_ray;
-            UInt32 stalls, steps; ///< the loop bound (see LoopBound)
-            UInt32 tripped;       ///< bit i: loop bound i stopped this path
-            Sampler *sampler;
-            DRJIT_STRUCT(PathState, active, depth, ray, throughput, result, si, mei, medium, eta,
-                         last_scatter_event, last_scatter_direction_pdf, needs_intersection,
-                         specular_chain, valid_ray, stalls, steps, tripped, sampler)
-        } ps = { active,
-                 UInt32(0),
-                 Ray3f(ray_),
-                 Spectrum(1.f),
-                 Spectrum(0.f),
-                 dr::zeros<SurfaceInteraction3f>(),
-                 dr::zeros<MediumInteraction3f>(),
-                 MediumPtr(initial_medium),
-                 Float(1.f),
-                 dr::zeros<Interaction3f>(),
-                 Float(1.f),
-                 Mask(true),
-                 Mask(active && !m_hide_emitters),
-                 valid_ray,
-                 UInt32(0),
-                 UInt32(0),
-                 UInt32(0),
-                 sampler };
+            Mask needs_intersection;
+            Mask specular_chain;
+            Mask valid_ray;
+            UInt32 stalls, steps, tripped; // volpathlocal: the loop bounds
+            Sampler* sampler;
 
-        dr::tie(ps) = dr::while_loop(
-            dr::make_tuple(ps), [](const PathState &ps) { return ps.active; },
-            [this, scene, channel](PathState &ps) {
-                Ray3f before = ps.ray;
-                UInt32 depth_before = ps.depth;
-                path_step(scene, channel, ps);
-                Mask moved = ps.depth != depth_before || dr::any(ps.ray.o != before.o) ||
-                             dr::any(ps.ray.d != before.d);
-                bound_loop(PathLoop, moved, ps.active, ps.stalls, ps.steps, ps.tripped);
-            },
-            "volpathlocal: path");
-        record_trips(ps.tripped, active);
-        return { ps.result, ps.valid_ray };
+            DRJIT_STRUCT(LoopState, active, depth, ray, throughput, result, \
+                si, mei, medium, eta, last_scatter_event, \
+                last_scatter_direction_pdf, needs_intersection, \
+                specular_chain, valid_ray, stalls, steps, tripped, sampler)
+        } ls = {
+            active,
+            depth,
+            ray,
+            throughput,
+            result,
+            si,
+            mei,
+            medium,
+            eta,
+            last_scatter_event,
+            last_scatter_direction_pdf,
+            needs_intersection,
+            specular_chain,
+            valid_ray,
+            UInt32(0), UInt32(0), UInt32(0),
+            sampler
+        };
+
+        dr::tie(ls) = dr::while_loop(dr::make_tuple(ls),
+            [](const LoopState& ls) { return ls.active; },
+            [this, scene, channel](LoopState& ls) {
+
+            Mask& active = ls.active;
+            UInt32& depth = ls.depth;
+            Ray3f& ray = ls.ray;
+            Spectrum& throughput = ls.throughput;
+            Spectrum& result = ls.result;
+            SurfaceInteraction3f& si = ls.si;
+            MediumInteraction3f& mei = ls.mei;
+            MediumPtr& medium = ls.medium;
+            Float& eta = ls.eta;
+            Interaction3f& last_scatter_event = ls.last_scatter_event;
+            Float& last_scatter_direction_pdf = ls.last_scatter_direction_pdf;
+            Mask& needs_intersection = ls.needs_intersection;
+            Mask& specular_chain = ls.specular_chain;
+            Mask& valid_ray = ls.valid_ray;
+            Sampler* sampler = ls.sampler;
+            // volpathlocal: what the loop bound compares (see bound_loop)
+            const Ray3f ray_before = ray;
+            const UInt32 depth_before = depth;
+
+            // ----------------- Handle termination of paths ------------------
+            // Russian roulette: try to keep path weights equal to one, while accounting for the
+            // solid angle compression at refractive index boundaries. Stop with at least some
+            // probability to avoid getting stuck (e.g. due to total internal reflection)
+            active &= dr::any(unpolarized_spectrum(throughput) != 0.f);
+            Float q = dr::minimum(dr::max(unpolarized_spectrum(throughput)) * dr::square(eta), .95f);
+            Mask perform_rr = (depth > (uint32_t) m_rr_depth);
+            active &= sampler->next_1d(active) < q || !perform_rr;
+            dr::masked(throughput, perform_rr) *= dr::rcp(dr::detach(q));
+
+            active &= depth < (uint32_t) m_max_depth;
+            if (dr::none_or<false>(active))
+                return;
+
+            // ----------------------- Sampling the RTE -----------------------
+            Mask active_medium  = active && (medium != nullptr);
+            Mask active_surface = active && !active_medium;
+            Mask act_null_scatter = false, act_medium_scatter = false,
+                 escaped_medium = false;
+
+            // volpathlocal: lanes in a tracked medium find their collision by
+            // delta tracking through its walk (below); the others sample theirs
+            // as volpath does
+            Mask tracked = tracked_lanes(medium, active_medium);
+            Mask sampled = active_medium && !tracked;
+
+            // If the medium does not have a spectrally varying extinction,
+            // we can perform a few optimizations to speed up rendering
+            Mask is_spectral = sampled; // volpathlocal: not tracked lanes (their weights: tracking)
+            Mask not_spectral = false;
+            if (dr::any_or<true>(sampled)) {
+                is_spectral &= medium->has_spectral_extinction();
+                not_spectral = !is_spectral && sampled;
+            }
+
+            if (dr::any_or<true>(active_medium)) {
+                // volpathlocal: tracked lanes get theirs from tracking (below):
+                // not sampled here (a scalar call would run whatever its mask,
+                // and a masked JIT call returns zeros: t = 0, "valid")
+                Float u = sampler->next_1d(active_medium);
+                if (dr::any_or<true>(sampled))
+                    mei = medium->sample_interaction(ray, u, channel, sampled);
+                dr::masked(mei.t, tracked) = dr::Infinity<Float>;
+                dr::masked(ray.maxt, sampled && medium->is_homogeneous() && mei.is_valid()) = mei.t;
+                Mask intersect = needs_intersection && active_medium;
+                if (dr::any_or<true>(intersect))
+                    dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
+                needs_intersection &= !active_medium;
+
+                // volpathlocal: delta tracking up to the nearest surface
+                for (const TrackedMedium &k : m_tracked) {
+                    Mask in_k = tracked && (medium == MediumPtr(k.medium));
+                    if (dr::none_or<false>(in_k))
+                        continue; // (scalar variants: not this medium)
+                    typename Tracker::Collision c = Tracker::delta_tracking(
+                        k, ray, si.t, m_coarse_depth, sampler, in_k);
+                    dr::masked(mei, in_k) = c.mei;
+                    dr::masked(throughput, in_k) *= c.weight;
+                    dr::masked(ls.tripped, in_k) |= c.tripped;
+                }
+
+                dr::masked(mei.t, active_medium && (si.t < mei.t)) = dr::Infinity<Float>;
+                // volpathlocal: a flight that leaves the medium without a
+                // collision and meets no surface (an unenclosed medium) keeps
+                // its throughput, its weight tr / pdf being 1 in the limit;
+                // volpath computes 0 / 0 there and loses the path
+                Mask weighted = is_spectral && (mei.is_valid() || si.is_valid());
+                if (dr::any_or<true>(weighted)) {
+                    auto [tr, free_flight_pdf] = medium->transmittance_eval_pdf(mei, si, weighted);
+                    Float tr_pdf = index_spectrum(free_flight_pdf, channel);
+                    dr::masked(throughput, weighted) *= dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
+                }
+
+                escaped_medium = active_medium && !mei.is_valid();
+                active_medium &= mei.is_valid();
+
+                // Handle null and real scatter events
+                Float null_scatter_prob = dr::mean(mei.sigma_n / mei.combined_extinction);
+                Mask null_scatter = sampler->next_1d(active_medium) < null_scatter_prob;
+                null_scatter &= !tracked; // volpathlocal: tracking resolved its null collisions
+
+                act_null_scatter |= null_scatter && active_medium;
+                act_medium_scatter |= !act_null_scatter && active_medium;
+
+                if (dr::any_or<true>(is_spectral && act_null_scatter))
+                    dr::masked(throughput, is_spectral && act_null_scatter) *=
+                        mei.sigma_n / null_scatter_prob;
+
+                dr::masked(depth, act_medium_scatter) += 1;
+                dr::masked(last_scatter_event, act_medium_scatter) = mei;
+            }
+
+            // Dont estimate lighting if we exceeded number of bounces
+            active &= depth < (uint32_t) m_max_depth;
+            act_medium_scatter &= active;
+
+            if (dr::any_or<true>(act_null_scatter)) {
+                dr::masked(ray.o, act_null_scatter) = mei.p;
+                dr::masked(si.t, act_null_scatter) = si.t - mei.t;
+            }
+
+            if (dr::any_or<true>(act_medium_scatter)) {
+                if (dr::any_or<true>(is_spectral))
+                    dr::masked(throughput, is_spectral && act_medium_scatter) *=
+                        mei.sigma_s / dr::mean(mei.sigma_t / mei.combined_extinction);
+                if (dr::any_or<true>(not_spectral))
+                    dr::masked(throughput, not_spectral && act_medium_scatter) *= mei.sigma_s / mei.sigma_t;
+
+                PhaseFunctionContext phase_ctx(sampler);
+                auto phase = mei.medium->phase_function();
+
+                // --------------------- Emitter sampling ---------------------
+                Mask sample_emitters = mei.medium->use_emitter_sampling();
+                valid_ray |= act_medium_scatter;
+                specular_chain &= !act_medium_scatter;
+                specular_chain |= act_medium_scatter && !sample_emitters;
+
+                Mask active_e = act_medium_scatter && sample_emitters;
+                if (dr::any_or<true>(active_e)) {
+                    auto [emitted, ds] = sample_emitter(mei, scene, sampler, medium, channel,
+                                                        ls.tripped, active_e);
+                    auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, ds.d, active_e);
+                    dr::masked(result, active_e) += throughput * phase_val * emitted *
+                                                    mis_weight(ds.pdf, dr::select(ds.delta, 0.f, phase_pdf));
+                }
+
+                // ------------------ Phase function sampling -----------------
+                dr::masked(phase, !act_medium_scatter) = nullptr;
+                auto [wo, phase_weight, phase_pdf] = phase->sample(phase_ctx, mei,
+                    sampler->next_1d(act_medium_scatter),
+                    sampler->next_2d(act_medium_scatter),
+                    act_medium_scatter);
+                act_medium_scatter &= phase_pdf > 0.f;
+                Ray3f new_ray  = mei.spawn_ray(wo);
+                dr::masked(ray, act_medium_scatter) = new_ray;
+                needs_intersection |= act_medium_scatter;
+                dr::masked(last_scatter_direction_pdf, act_medium_scatter) = phase_pdf;
+                dr::masked(throughput, act_medium_scatter) *= phase_weight;
+            }
+
+            // --------------------- Surface Interactions ---------------------
+            active_surface |= escaped_medium;
+            Mask intersect = active_surface && needs_intersection;
+            if (dr::any_or<true>(intersect))
+                dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
+
+            if (dr::any_or<true>(active_surface)) {
+                // ---------------------- Hide area emitters ----------------------
+                if (m_hide_emitters && dr::any_or<true>(ls.depth == 0u)) {
+                    // Are we on the first segment and did we hit an area emitter?
+                    // If so, skip all area emitters along this ray
+                    Mask skip_emitters = si.is_valid() &&
+                                         (si.shape->emitter() != nullptr) &&
+                                         (ls.depth == 0) &&
+                                         intersect;
+
+                    if (dr::any_or<true>(skip_emitters)) {
+                        Ray3f ray = si.spawn_ray(ls.ray.d);
+                        PreliminaryIntersection3f pi =
+                            Base::skip_area_emitters(scene, ray, true, skip_emitters);
+                        SurfaceInteraction3f si_after_skip =
+                            pi.compute_surface_interaction(ray, +RayFlags::All, skip_emitters);
+                        dr::masked(si, skip_emitters) = si_after_skip;
+                    }
+                }
+
+                // ---------------- Intersection with emitters ----------------
+                Mask ray_from_camera = active_surface && (depth == 0u);
+                Mask count_direct = ray_from_camera || specular_chain;
+                EmitterPtr emitter = si.emitter(scene);
+                Mask active_e = active_surface && (emitter != nullptr) &&
+                                !((depth == 0u) && m_hide_emitters);
+                if (dr::any_or<true>(active_e)) {
+                    Float emitter_pdf = 1.0f;
+                    if (dr::any_or<true>(active_e && !count_direct)) {
+                        // Get the PDF of sampling this emitter using next event estimation
+                        DirectionSample3f ds(scene, si, last_scatter_event);
+                        emitter_pdf = scene->pdf_emitter_direction(last_scatter_event, ds, active_e);
+                    }
+                    Spectrum emitted = emitter->eval(si, active_e);
+                    Spectrum contrib = dr::select(count_direct, throughput * emitted,
+                                                  throughput * mis_weight(last_scatter_direction_pdf, emitter_pdf) * emitted);
+                    dr::masked(result, active_e) += contrib;
+                }
+            }
+            active_surface &= si.is_valid();
+            if (dr::any_or<true>(active_surface)) {
+                // --------------------- Emitter sampling ---------------------
+                BSDFContext ctx;
+                BSDFPtr bsdf  = si.bsdf(ray);
+                Mask active_e = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) && (depth + 1 < (uint32_t) m_max_depth);
+
+                if (likely(dr::any_or<true>(active_e))) {
+                    auto [emitted, ds] = sample_emitter(si, scene, sampler, medium, channel,
+                                                        ls.tripped, active_e);
+
+                    // Query the BSDF for that emitter-sampled direction
+                    Vector3f wo       = si.to_local(ds.d);
+                    Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e);
+                    bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi);
+
+                    // Determine probability of having sampled that same
+                    // direction using BSDF sampling.
+                    Float bsdf_pdf = bsdf->pdf(ctx, si, wo, active_e);
+                    result[active_e] += throughput * bsdf_val * mis_weight(ds.pdf, dr::select(ds.delta, 0.f, bsdf_pdf)) * emitted;
+                }
+
+                // ----------------------- BSDF sampling ----------------------
+                auto [bs, bsdf_val] = bsdf->sample(ctx, si, sampler->next_1d(active_surface),
+                                                   sampler->next_2d(active_surface), active_surface);
+                bsdf_val = si.to_world_mueller(bsdf_val, -bs.wo, si.wi);
+
+                dr::masked(throughput, active_surface) *= bsdf_val;
+                dr::masked(eta, active_surface) *= bs.eta;
+
+                Ray3f bsdf_ray                  = si.spawn_ray(si.to_world(bs.wo));
+                dr::masked(ray, active_surface) = bsdf_ray;
+                needs_intersection |= active_surface;
+
+                Mask non_null_bsdf = active_surface && !has_flag(bs.sampled_type, BSDFFlags::Null);
+                dr::masked(depth, non_null_bsdf) += 1;
+
+                // update the last scatter PDF event if we encountered a non-null scatter event
+                dr::masked(last_scatter_event, non_null_bsdf) = si;
+                dr::masked(last_scatter_direction_pdf, non_null_bsdf) = bs.pdf;
+
+                valid_ray |= non_null_bsdf;
+                specular_chain |= non_null_bsdf && has_flag(bs.sampled_type, BSDFFlags::Delta);
+                specular_chain &= !(active_surface && has_flag(bs.sampled_type, BSDFFlags::Smooth));
+                act_null_scatter |= active_surface && has_flag(bs.sampled_type, BSDFFlags::Null);
+                Mask has_medium_trans                = active_surface && si.is_medium_transition();
+                dr::masked(medium, has_medium_trans) = si.target_medium(ray.d);
+            }
+            active &= (active_surface | active_medium);
+
+            // volpathlocal: the loop bound
+            Mask moved = depth != depth_before || dr::any(ray.o != ray_before.o) ||
+                         dr::any(ray.d != ray_before.d);
+            bound_loop(PathLoop, moved, active, ls.stalls, ls.steps, ls.tripped);
+        },
+        "volpathlocal: path");
+
+        record_trips(ls.tripped, active); // volpathlocal
+        return { ls.result, ls.valid_ray };
     }
+
+
+    /// Samples an emitter in the scene and evaluates its attenuated contribution
+    template <typename Interaction>
+    std::tuple<Spectrum, DirectionSample3f>
+    sample_emitter(const Interaction &ref_interaction, const Scene *scene,
+                   Sampler *sampler, MediumPtr medium,
+                   UInt32 channel, UInt32 &tripped, Mask active) const {
+        Spectrum transmittance(1.0f);
+
+        auto [ds, emitter_val] = scene->sample_emitter_direction(ref_interaction, sampler->next_2d(active), false, active);
+        dr::masked(emitter_val, ds.pdf == 0.f) = 0.f;
+        active &= (ds.pdf != 0.f);
+
+        if (dr::none_or<false>(active)) {
+            return { emitter_val, ds };
+        }
+
+        Ray3f ray = ref_interaction.spawn_ray_to(ds.p);
+        Float max_dist = ray.maxt;
+
+        // Potentially escaping the medium if this is the current medium's boundary
+        if constexpr (std::is_convertible_v<Interaction, SurfaceInteraction3f>)
+            dr::masked(medium, ref_interaction.is_medium_transition()) =
+                ref_interaction.target_medium(ray.d);
+
+        Float total_dist = 0.f;
+        SurfaceInteraction3f si = dr::zeros<SurfaceInteraction3f>();
+        Mask needs_intersection = true;
+        DirectionSample3f dir_sample = ds;
+
+        struct LoopState {
+            Mask active;
+            Ray3f ray;
+            Float total_dist;
+            Mask needs_intersection;
+            MediumPtr medium;
+            SurfaceInteraction3f si;
+            Spectrum transmittance;
+            DirectionSample3f dir_sample;
+            UInt32 stalls, steps, tripped; // volpathlocal: the loop bounds
+            Sampler* sampler;
+
+            DRJIT_STRUCT(LoopState, active, ray, total_dist, \
+                needs_intersection, medium, si, transmittance, \
+                dir_sample, stalls, steps, tripped, sampler)
+        } ls = {
+            active,
+            ray,
+            total_dist,
+            needs_intersection,
+            medium,
+            si,
+            transmittance,
+            dir_sample,
+            UInt32(0), UInt32(0), UInt32(0),
+            sampler
+        };
+
+        dr::tie(ls) = dr::while_loop(dr::make_tuple(ls),
+            [](const LoopState& ls) { return dr::detach(ls.active); },
+            [this, scene, channel, max_dist](LoopState& ls) {
+
+            Mask& active = ls.active;
+            Ray3f& ray = ls.ray;
+            Float& total_dist = ls.total_dist;
+            Mask& needs_intersection = ls.needs_intersection;
+            MediumPtr& medium = ls.medium;
+            SurfaceInteraction3f& si = ls.si;
+            Spectrum& transmittance = ls.transmittance;
+            DirectionSample3f& dir_sample = ls.dir_sample;
+            Sampler* sampler = ls.sampler;
+            const Point3f origin_before = ray.o; // volpathlocal: the loop bound
+
+            Float remaining_dist = max_dist - total_dist;
+            ray.maxt = remaining_dist;
+            active &= remaining_dist > 0.f;
+            if (dr::none_or<false>(active))
+                return;
+
+            Mask escaped_medium = false;
+            Mask active_medium  = active && (medium != nullptr);
+            Mask active_surface = active && !active_medium;
+
+            if (dr::any_or<true>(active_medium)) {
+                // volpathlocal: tracked media by ratio tracking (below), the
+                // others as volpath
+                Mask tracked = tracked_lanes(medium, active_medium);
+                Mask sampled = active_medium && !tracked;
+
+                // volpathlocal: no collision of their own for tracked lanes
+                // (not sampled: see the path loop)
+                Float u = sampler->next_1d(active_medium);
+                auto mei = dr::zeros<MediumInteraction3f>();
+                if (dr::any_or<true>(sampled))
+                    mei = medium->sample_interaction(ray, u, channel, sampled);
+                dr::masked(mei.t, tracked) = dr::Infinity<Float>;
+                dr::masked(ray.maxt, sampled && medium->is_homogeneous() && mei.is_valid()) = dr::minimum(mei.t, remaining_dist);
+                Mask intersect = needs_intersection && active_medium;
+                if (dr::any_or<true>(intersect))
+                    dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
+
+                dr::masked(mei.t, active_medium && (si.t < mei.t)) = dr::Infinity<Float>;
+                needs_intersection &= !active_medium;
+
+                // volpathlocal: ratio tracking the whole way to the surface (or
+                // the emitter); the lane then leaves the medium there
+                for (const TrackedMedium &k : m_tracked) {
+                    Mask in_k = tracked && (medium == MediumPtr(k.medium));
+                    if (dr::none_or<false>(in_k))
+                        continue;
+                    auto [tr, tripped_k] = Tracker::ratio_tracking(
+                        k, ray, dr::minimum(si.t, remaining_dist), m_coarse_depth, sampler, in_k);
+                    dr::masked(transmittance, in_k) *= tr;
+                    dr::masked(ls.tripped, in_k) |= tripped_k;
+                }
+
+                Mask is_spectral = medium->has_spectral_extinction() && sampled;
+                Mask not_spectral = !is_spectral && sampled;
+                // volpathlocal: no collision and no surface before an emitter
+                // at infinity is a weight of 1, as for the path
+                Mask weighted = is_spectral && (mei.is_valid() || si.is_valid());
+                if (dr::any_or<true>(weighted)) {
+                    Float t      = dr::minimum(remaining_dist, dr::minimum(mei.t, si.t)) - mei.mint;
+                    UnpolarizedSpectrum tr  = dr::exp(-t * mei.combined_extinction);
+                    UnpolarizedSpectrum free_flight_pdf = dr::select(si.t < mei.t || mei.t > remaining_dist, tr, tr * mei.combined_extinction);
+                    Float tr_pdf = index_spectrum(free_flight_pdf, channel);
+                    dr::masked(transmittance, weighted) *= dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
+                }
+
+                // Handle exceeding the maximum distance by medium sampling
+                dr::masked(total_dist, active_medium && (mei.t > remaining_dist) && mei.is_valid()) = dir_sample.dist;
+                dr::masked(mei.t, active_medium && (mei.t > remaining_dist)) = dr::Infinity<Float>;
+
+                escaped_medium = active_medium && !mei.is_valid();
+                active_medium &= mei.is_valid();
+                is_spectral &= active_medium;
+                not_spectral &= active_medium;
+
+                dr::masked(total_dist, active_medium) += mei.t;
+
+                if (dr::any_or<true>(active_medium)) {
+                    dr::masked(ray.o, active_medium)    = mei.p;
+                    dr::masked(si.t, active_medium) = si.t - mei.t;
+
+                    if (dr::any_or<true>(is_spectral))
+                        dr::masked(transmittance, is_spectral) *= mei.sigma_n;
+                    if (dr::any_or<true>(not_spectral))
+                        dr::masked(transmittance, not_spectral) *= mei.sigma_n / mei.combined_extinction;
+                }
+            }
+
+            // Handle interactions with surfaces
+            Mask intersect = active_surface && needs_intersection;
+            if (dr::any_or<true>(intersect))
+                dr::masked(si, intersect)    = scene->ray_intersect(ray, intersect);
+            needs_intersection &= !intersect;
+            active_surface |= escaped_medium;
+            dr::masked(total_dist, active_surface) += si.t;
+
+            active_surface &= si.is_valid() && active && !active_medium;
+            if (dr::any_or<true>(active_surface)) {
+                auto bsdf         = si.bsdf(ray);
+                Spectrum bsdf_val = bsdf->eval_null_transmission(si, active_surface);
+                bsdf_val = si.to_world_mueller(bsdf_val, si.wi, si.wi);
+                dr::masked(transmittance, active_surface) *= bsdf_val;
+            }
+
+            // Update the ray with new origin & t parameter
+            dr::masked(ray, active_surface) = si.spawn_ray(ray.d);
+            ray.maxt = remaining_dist;
+            needs_intersection |= active_surface;
+
+            // Continue tracing through scene if non-zero weights exist
+            active &= (active_medium || active_surface) &&
+                      dr::any(unpolarized_spectrum(transmittance) != 0.f);
+
+            // If a medium transition is taking place: Update the medium pointer
+            Mask has_medium_trans = active_surface && si.is_medium_transition();
+            if (dr::any_or<true>(has_medium_trans)) {
+                dr::masked(medium, has_medium_trans) = si.target_medium(ray.d);
+            }
+
+            // volpathlocal: the loop bound
+            bound_loop(ShadowLoop, dr::any(ray.o != origin_before), active, ls.stalls,
+                       ls.steps, ls.tripped);
+        },
+        "volpathlocal: emitter sampling");
+
+        dr::masked(tripped, active) |= ls.tripped; // volpathlocal
+        return { ls.transmittance * emitter_val, dir_sample };
+    }
+
+    //! @}
+    // =============================================================
 
     std::string to_string() const override {
         report_trips();
@@ -247,40 +752,21 @@ public:
                            m_tracked.size(), trip_list);
     }
 
+    Float mis_weight(Float pdf_a, Float pdf_b) const {
+        pdf_a *= pdf_a;
+        pdf_b *= pdf_b;
+        Float w = pdf_a / (pdf_a + pdf_b);
+        return dr::select(dr::isfinite(w), w, 0.f);
+    };
+
     MI_DECLARE_CLASS(VolumetricPathLocalMajorants)
 
 private:
-    /**
-     * Each loop of this integrator stops a lane after more iterations than a
-     * valid ray can take, and counts it; render() warns, and to_string() and
-     * traverse() ("loop_bound_trips") show the counts. A trip means a bug or
-     * an input outside what the integrator supports; the lane then ends as
-     * if it had left the medium (or the path had been absorbed), so the
-     * image is finite but biased there.
-     *  - path, shadow ray: kMaxStalls iterations in a row in which the path
-     *    neither scattered nor moved (every valid iteration does one of the
-     *    two, or ends the path), or kMaxLoopSteps in all;
-     *  - walk: a flight's steps beyond twice the cell faces its segment can
-     *    cross (begin_flight());
-     *  - delta, ratio tracking: tentative collisions beyond the Poisson tail
-     *    of the global majorant's optical depth (begin_flight()).
-     */
-    enum LoopBound : uint32_t { PathLoop = 0, ShadowLoop, WalkLoop, DeltaLoop, RatioLoop,
-                                LoopCount };
-    static constexpr const char *kLoopNames[LoopCount] = { "path", "shadow ray", "walk",
-                                                           "delta tracking", "ratio tracking" };
-    static constexpr uint32_t kMaxStalls = 16;
-    static constexpr uint32_t kMaxLoopSteps = 1u << 24;
+    // =====================================================================
+    //  volpathlocal: the media to track
+    // =====================================================================
 
-    /// A heterogeneous medium whose sigma_t offers local majorants
-    struct Tracked {
-        const Medium *medium;
-        const Majorants *volume;
-        ScalarFloat scale;
-        ScalarFloat max_majorant; ///< scale x the largest segment bound
-    };
-
-    /// Reads a medium's "sigma_t" and "scale" (what heterogeneous exposes)
+    /// Reads what a medium exposes: "sigma_t" and "scale" (as heterogeneous)
     struct FindParameters final : public TraversalCallback {
         Object *sigma_t = nullptr;
         ScalarFloat scale = 1.f;
@@ -298,10 +784,15 @@ private:
         }
     };
 
-    /// Finds the media to track: every `heterogeneous` medium of the scene
-    /// (on shapes, sensors, emitters) whose sigma_t offers local majorants.
-    /// Done on every render (a scale may have changed), and on the first
-    /// sample() for a scene that render() did not see.
+    /**
+     * Finds the media to track: every medium of the scene (on shapes,
+     * sensors, emitters) that exposes a sigma_t volume offering local
+     * majorants and a scale, and whose own majorant is scale x that
+     * volume's max() (so that scale x a segment's bound is a majorant of
+     * its extinction, as its global one is). Done on every render (a scale
+     * may have changed), and on the first sample() for a scene that render()
+     * did not see.
+     */
     void prepare(const Scene *scene, bool force) const {
         if (!force && m_prepared_for.load(std::memory_order_acquire) == scene)
             return; // the common case: no lock per sample() call
@@ -321,16 +812,22 @@ private:
             add(sensor->medium());
         for (const auto &emitter : scene->emitters())
             add(emitter->medium());
-        std::vector<Tracked> tracked;
+        std::vector<TrackedMedium> tracked;
         for (const Medium *m : media) {
-            if (m->class_name() != std::string_view("HeterogeneousMedium"))
-                continue;
             FindParameters p;
             const_cast<Medium *>(m)->traverse(&p);
+            using Majorants = LocalMajorants<Float, Spectrum>;
             const Majorants *v = p.sigma_t ? dynamic_cast<const Majorants *>(p.sigma_t) : nullptr;
+            const Volume *volume = p.sigma_t ? dynamic_cast<const Volume *>(p.sigma_t) : nullptr;
             // (scale 0: nothing to track, and no collision either way)
-            if (!v || !p.has_scale || !(p.scale > 0.f))
+            if (!v || !volume || !p.has_scale || !(p.scale > 0.f))
                 continue;
+            // (the check evaluates a kernel: not while a frozen function records)
+            if (!recording() && !majorant_is_scale_times_max(m, p.scale * volume->max())) {
+                Log(Debug, "volpathlocal: a medium's majorant is not scale x max(): "
+                           "tracked as volpath does");
+                continue;
+            }
             // A volume of (nearly) one density: the walk would cost its steps
             // and save no null collisions; track it as volpath does
             if (v->local_majorant_ratio() > m_max_ratio) {
@@ -347,620 +844,59 @@ private:
         m_prepared_for.store(scene, std::memory_order_release);
     }
 
-    /// One iteration of the path loop: a free flight (in a medium) or a
-    /// surface interaction, as volpath does; tracked media resolve their
-    /// null collisions inside track_collision()
-    template <typename PathState>
-    void path_step(const Scene *scene, const UInt32 &channel, PathState &ps) const {
-        Mask &active = ps.active;
-        Sampler *sampler = ps.sampler;
-        Ray3f &ray = ps.ray;
-        SurfaceInteraction3f &si = ps.si;
-        MediumInteraction3f &mei = ps.mei;
-
-        // ----------------- Russian roulette and depth --------------------
-        active &= dr::any(unpolarized_spectrum(ps.throughput) != 0.f);
-        Float q = dr::minimum(dr::max(unpolarized_spectrum(ps.throughput)) * dr::square(ps.eta),
-                              .95f);
-        Mask perform_rr = ps.depth > (uint32_t) m_rr_depth;
-        active &= sampler->next_1d(active) < q || !perform_rr;
-        dr::masked(ps.throughput, perform_rr) *= dr::rcp(dr::detach(q));
-        active &= ps.depth < (uint32_t) m_max_depth;
-        if (dr::none_or<false>(active))
-            return;
-
-        // ----------------------- Free flight ------------------------------
-        Mask active_medium = active && (ps.medium != nullptr);
-        Mask active_surface = active && !active_medium;
-        Mask act_null_scatter = false, act_medium_scatter = false, escaped_medium = false;
-        Mask fallback_spectral = false, fallback_grey = false;
-
-        if (dr::any_or<true>(active_medium)) {
-            // The nearest surface first: tracking stops there
-            Mask intersect = ps.needs_intersection && active_medium;
-            if (dr::any_or<true>(intersect))
-                dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
-            ps.needs_intersection &= !active_medium;
-
-            Mask tracked = false;
-            for (const Tracked &k : m_tracked) {
-                Mask in_k = active_medium && (ps.medium == MediumPtr(k.medium));
-                if (dr::none_or<false>(in_k))
-                    continue; // (scalar variants: not this medium)
-                tracked |= in_k;
-                auto [real, mei_k, weight, tripped] = track_collision(k, ray, si.t, sampler, in_k);
-                ps.tripped |= tripped;
-                dr::masked(mei, in_k) = mei_k;
-                dr::masked(ps.throughput, real) *= weight;
-                act_medium_scatter |= real;
-                escaped_medium |= in_k && !real;
+    /// Whether a medium's majorant (at any point: heterogeneous media have
+    /// one) is `expected` in every channel, to float rounding
+    static bool majorant_is_scale_times_max(const Medium *m, ScalarFloat expected) {
+        if constexpr (dr::is_jit_v<Float>) {
+            MediumInteraction3f mei = dr::zeros<MediumInteraction3f>(1);
+            UnpolarizedSpectrum maj = m->get_majorant(mei, true);
+            dr::eval(maj);
+            for (size_t c = 0; c < dr::size_v<UnpolarizedSpectrum>; ++c) {
+                float value = dr::slice(maj[c], 0);
+                if (!(std::abs(value - expected) <= 1e-5f * std::abs(expected)))
+                    return false;
             }
-
-            // Every other medium: one tentative collision of its own, as volpath
-            Mask other = active_medium && !tracked;
-            if (dr::any_or<true>(other)) {
-                MediumPtr medium = ps.medium;
-                fallback_spectral = other && medium->has_spectral_extinction();
-                fallback_grey = other && !fallback_spectral;
-                MediumInteraction3f mei_o =
-                    medium->sample_interaction(ray, sampler->next_1d(other), channel, other);
-                dr::masked(mei_o.t, other && (si.t < mei_o.t)) = dr::Infinity<Float>;
-                // Differs from volpath: a flight that leaves the medium without
-                // a collision and meets no surface (an unenclosed medium) keeps
-                // its throughput, its weight tr / pdf being 1 in the limit;
-                // volpath computes 0 / 0 there and loses the path. (Tracked
-                // media do the same: see track_collision.)
-                Mask weighted = fallback_spectral && (mei_o.is_valid() || si.is_valid());
-                if (dr::any_or<true>(weighted)) {
-                    auto [tr, free_flight_pdf] =
-                        medium->transmittance_eval_pdf(mei_o, si, weighted);
-                    Float tr_pdf = index_spectrum(free_flight_pdf, channel);
-                    dr::masked(ps.throughput, weighted) *=
-                        dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
-                }
-                escaped_medium |= other && !mei_o.is_valid();
-                Mask collided = other && mei_o.is_valid();
-                Float null_prob = dr::mean(mei_o.sigma_n / mei_o.combined_extinction);
-                Mask null_scatter = collided && sampler->next_1d(collided) < null_prob;
-                act_null_scatter |= null_scatter;
-                act_medium_scatter |= collided && !null_scatter;
-                if (dr::any_or<true>(fallback_spectral && null_scatter))
-                    dr::masked(ps.throughput, fallback_spectral && null_scatter) *=
-                        mei_o.sigma_n / null_prob;
-                Mask real_spectral = fallback_spectral && collided && !null_scatter,
-                     real_grey = fallback_grey && collided && !null_scatter;
-                dr::masked(ps.throughput, real_spectral) *=
-                    mei_o.sigma_s / dr::mean(mei_o.sigma_t / mei_o.combined_extinction);
-                dr::masked(ps.throughput, real_grey) *= mei_o.sigma_s / mei_o.sigma_t;
-                dr::masked(mei, other) = mei_o;
-            }
-            // volpath: a lane that left its medium is done with it (without
-            // this, a lane whose ray starts outside its medium's box and meets
-            // no surface would stay active, unchanged, for ever)
-            active_medium &= !escaped_medium;
-            dr::masked(ps.depth, act_medium_scatter) += 1;
-            dr::masked(ps.last_scatter_event, act_medium_scatter) = mei;
+        } else {
+            MediumInteraction3f mei = dr::zeros<MediumInteraction3f>();
+            UnpolarizedSpectrum maj = m->get_majorant(mei, true);
+            for (size_t c = 0; c < dr::size_v<UnpolarizedSpectrum>; ++c)
+                if (!(std::abs(maj[c] - expected) <= 1e-5f * std::abs(expected)))
+                    return false;
         }
+        return true;
+    }
 
-        // No lighting past the maximum depth
-        active &= ps.depth < (uint32_t) m_max_depth;
-        act_medium_scatter &= active;
-
-        if (dr::any_or<true>(act_null_scatter)) {
-            dr::masked(ray.o, act_null_scatter) = mei.p;
-            dr::masked(si.t, act_null_scatter) = si.t - mei.t;
-        }
-
-        // ----------------------- Medium scattering ------------------------
-        if (dr::any_or<true>(act_medium_scatter)) {
-            PhaseFunctionContext phase_ctx(sampler);
-            auto phase = mei.medium->phase_function();
-
-            Mask sample_emitters = mei.medium->use_emitter_sampling();
-            ps.valid_ray |= act_medium_scatter;
-            ps.specular_chain &= !act_medium_scatter;
-            ps.specular_chain |= act_medium_scatter && !sample_emitters;
-
-            Mask active_e = act_medium_scatter && sample_emitters;
-            if (dr::any_or<true>(active_e)) {
-                auto [emitted, ds] = sample_emitter(mei, scene, sampler, ps.medium, channel,
-                                                    ps.tripped, active_e);
-                auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, ds.d, active_e);
-                dr::masked(ps.result, active_e) +=
-                    ps.throughput * phase_val * emitted *
-                    mis_weight(ds.pdf, dr::select(ds.delta, 0.f, phase_pdf));
-            }
-
-            dr::masked(phase, !act_medium_scatter) = nullptr;
-            auto [wo, phase_weight, phase_pdf] =
-                phase->sample(phase_ctx, mei, sampler->next_1d(act_medium_scatter),
-                              sampler->next_2d(act_medium_scatter), act_medium_scatter);
-            act_medium_scatter &= phase_pdf > 0.f;
-            dr::masked(ray, act_medium_scatter) = mei.spawn_ray(wo);
-            ps.needs_intersection |= act_medium_scatter;
-            dr::masked(ps.last_scatter_direction_pdf, act_medium_scatter) = phase_pdf;
-            dr::masked(ps.throughput, act_medium_scatter) *= phase_weight;
-        }
-
-        // ---------------------- Surface interactions ----------------------
-        active_surface |= escaped_medium;
-        Mask intersect = active_surface && ps.needs_intersection;
-        if (dr::any_or<true>(intersect))
-            dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
-
-        if (dr::any_or<true>(active_surface)) {
-            // Hidden area emitters on the camera ray: skip them
-            if (m_hide_emitters && dr::any_or<true>(ps.depth == 0u)) {
-                Mask skip = si.is_valid() && (si.shape->emitter() != nullptr) &&
-                            (ps.depth == 0u) && intersect;
-                if (dr::any_or<true>(skip)) {
-                    Ray3f skip_ray = si.spawn_ray(ray.d);
-                    PreliminaryIntersection3f pi =
-                        Base::skip_area_emitters(scene, skip_ray, true, skip);
-                    dr::masked(si, skip) =
-                        pi.compute_surface_interaction(skip_ray, +RayFlags::All, skip);
-                }
-            }
-
-            // Emitters hit: direct, or weighted against emitter sampling
-            Mask count_direct = (active_surface && ps.depth == 0u) || ps.specular_chain;
-            EmitterPtr emitter = si.emitter(scene);
-            Mask active_e = active_surface && (emitter != nullptr) &&
-                            !((ps.depth == 0u) && m_hide_emitters);
-            if (dr::any_or<true>(active_e)) {
-                Float emitter_pdf = 1.f;
-                if (dr::any_or<true>(active_e && !count_direct)) {
-                    DirectionSample3f ds(scene, si, ps.last_scatter_event);
-                    emitter_pdf =
-                        scene->pdf_emitter_direction(ps.last_scatter_event, ds, active_e);
-                }
-                Spectrum emitted = emitter->eval(si, active_e);
-                dr::masked(ps.result, active_e) += dr::select(
-                    count_direct, ps.throughput * emitted,
-                    ps.throughput * mis_weight(ps.last_scatter_direction_pdf, emitter_pdf) *
-                        emitted);
-            }
-        }
-        active_surface &= si.is_valid();
-        if (dr::any_or<true>(active_surface)) {
-            BSDFContext ctx;
-            BSDFPtr bsdf = si.bsdf(ray);
-            Mask active_e = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) &&
-                            (ps.depth + 1 < (uint32_t) m_max_depth);
-            if (dr::any_or<true>(active_e)) {
-                auto [emitted, ds] = sample_emitter(si, scene, sampler, ps.medium, channel,
-                                                    ps.tripped, active_e);
-                Vector3f wo = si.to_local(ds.d);
-                Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e);
-                bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi);
-                Float bsdf_pdf = bsdf->pdf(ctx, si, wo, active_e);
-                dr::masked(ps.result, active_e) +=
-                    ps.throughput * bsdf_val *
-                    mis_weight(ds.pdf, dr::select(ds.delta, 0.f, bsdf_pdf)) * emitted;
-            }
-
-            auto [bs, bsdf_val] = bsdf->sample(ctx, si, sampler->next_1d(active_surface),
-                                               sampler->next_2d(active_surface), active_surface);
-            bsdf_val = si.to_world_mueller(bsdf_val, -bs.wo, si.wi);
-            dr::masked(ps.throughput, active_surface) *= bsdf_val;
-            dr::masked(ps.eta, active_surface) *= bs.eta;
-            dr::masked(ray, active_surface) = si.spawn_ray(si.to_world(bs.wo));
-            ps.needs_intersection |= active_surface;
-
-            Mask non_null_bsdf = active_surface && !has_flag(bs.sampled_type, BSDFFlags::Null);
-            dr::masked(ps.depth, non_null_bsdf) += 1;
-            dr::masked(ps.last_scatter_event, non_null_bsdf) = si;
-            dr::masked(ps.last_scatter_direction_pdf, non_null_bsdf) = bs.pdf;
-
-            ps.valid_ray |= non_null_bsdf;
-            ps.specular_chain |= non_null_bsdf && has_flag(bs.sampled_type, BSDFFlags::Delta);
-            ps.specular_chain &= !(active_surface && has_flag(bs.sampled_type, BSDFFlags::Smooth));
-            act_null_scatter |= active_surface && has_flag(bs.sampled_type, BSDFFlags::Null);
-            Mask has_medium_trans = active_surface && si.is_medium_transition();
-            dr::masked(ps.medium, has_medium_trans) = si.target_medium(ray.d);
-        }
-        active &= active_surface || active_medium;
+    /// The lanes of `active` whose medium is tracked
+    Mask tracked_lanes(const MediumPtr &medium, const Mask &active) const {
+        Mask tracked = false;
+        for (const TrackedMedium &k : m_tracked)
+            tracked |= active && (medium == MediumPtr(k.medium));
+        return tracked;
     }
 
     // =====================================================================
-    //  Emitter sampling: volpath's shadow ray, tracked media by ratio tracking
+    //  volpathlocal: loop bounds, every loop ends whatever the input
     // =====================================================================
 
-    template <typename Interaction>
-    std::tuple<Spectrum, DirectionSample3f>
-    sample_emitter(const Interaction &ref, const Scene *scene, Sampler *sampler,
-                   MediumPtr medium, const UInt32 &channel, UInt32 &tripped, Mask active) const {
-        auto [ds, emitter_val] =
-            scene->sample_emitter_direction(ref, sampler->next_2d(active), false, active);
-        dr::masked(emitter_val, ds.pdf == 0.f) = 0.f;
-        active &= ds.pdf != 0.f;
-        if (dr::none_or<false>(active))
-            return { emitter_val, ds };
-
-        Ray3f ray = ref.spawn_ray_to(ds.p);
-        Float max_dist = ray.maxt;
-        // Leaving the current medium if ref is on its boundary
-        if constexpr (std::is_convertible_v<Interaction, SurfaceInteraction3f>)
-            dr::masked(medium, ref.is_medium_transition()) = ref.target_medium(ray.d);
-
-        struct ShadowState {
-            Mask active;
-            Ray3f ray;
-            Float total_dist;
-            Mask needs_intersection;
-            MediumPtr medium;
-            SurfaceInteraction3f si;
-            Spectrum transmittance;
-            UInt32 stalls, steps, tripped; ///< the loop bound (see LoopBound)
-            Sampler *sampler;
-            DRJIT_STRUCT(ShadowState, active, ray, total_dist, needs_intersection, medium, si,
-                         transmittance, stalls, steps, tripped, sampler)
-        } ss = { active, ray, Float(0.f), Mask(true), medium,
-                 dr::zeros<SurfaceInteraction3f>(), Spectrum(1.f), UInt32(0), UInt32(0),
-                 UInt32(0), sampler };
-
-        dr::tie(ss) = dr::while_loop(
-            dr::make_tuple(ss), [](const ShadowState &ss) { return dr::detach(ss.active); },
-            [this, scene, channel, max_dist, ds = ds](ShadowState &ss) {
-                Point3f before = ss.ray.o;
-                shadow_step(scene, channel, max_dist, ds.dist, ss);
-                bound_loop(ShadowLoop, dr::any(ss.ray.o != before), ss.active, ss.stalls,
-                           ss.steps, ss.tripped);
-            },
-            "volpathlocal: shadow ray");
-        dr::masked(tripped, active) |= ss.tripped;
-        return { ss.transmittance * emitter_val, ds };
-    }
-
-    template <typename ShadowState>
-    void shadow_step(const Scene *scene, const UInt32 &channel, const Float &max_dist,
-                     const Float &ds_dist, ShadowState &ss) const {
-        Mask &active = ss.active;
-        Ray3f &ray = ss.ray;
-        SurfaceInteraction3f &si = ss.si;
-        Sampler *sampler = ss.sampler;
-
-        Float remaining = max_dist - ss.total_dist;
-        ray.maxt = remaining;
-        active &= remaining > 0.f;
-        if (dr::none_or<false>(active))
-            return;
-
-        Mask escaped_medium = false;
-        Mask active_medium = active && (ss.medium != nullptr);
-        Mask active_surface = active && !active_medium;
-
-        if (dr::any_or<true>(active_medium)) {
-            Mask intersect = ss.needs_intersection && active_medium;
-            if (dr::any_or<true>(intersect))
-                dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
-            ss.needs_intersection &= !active_medium;
-
-            // Tracked media: the whole way to the surface (or the emitter)
-            Mask tracked = false;
-            for (const Tracked &k : m_tracked) {
-                Mask in_k = active_medium && (ss.medium == MediumPtr(k.medium));
-                if (dr::none_or<false>(in_k))
-                    continue;
-                tracked |= in_k;
-                auto [tr, tripped] = track_transmittance(k, ray, dr::minimum(si.t, remaining),
-                                                         sampler, in_k);
-                dr::masked(ss.transmittance, in_k) *= tr;
-                ss.tripped |= tripped;
-            }
-            escaped_medium |= tracked;
-
-            // Every other medium: a tentative collision, as volpath
-            Mask other = active_medium && !tracked;
-            active_medium = false;
-            if (dr::any_or<true>(other)) {
-                MediumPtr medium = ss.medium;
-                MediumInteraction3f mei =
-                    medium->sample_interaction(ray, sampler->next_1d(other), channel, other);
-                dr::masked(mei.t, other && (si.t < mei.t)) = dr::Infinity<Float>;
-                Mask is_spectral = medium->has_spectral_extinction() && other;
-                Mask not_spectral = !is_spectral && other;
-                // Differs from volpath, as for the path: no collision and no
-                // surface before an emitter at infinity is a weight of 1
-                Mask weighted = is_spectral && (mei.is_valid() || si.is_valid());
-                if (dr::any_or<true>(weighted)) {
-                    Float t = dr::minimum(remaining, dr::minimum(mei.t, si.t)) - mei.mint;
-                    UnpolarizedSpectrum tr = dr::exp(-t * mei.combined_extinction);
-                    UnpolarizedSpectrum pdf = dr::select(si.t < mei.t || mei.t > remaining, tr,
-                                                         tr * mei.combined_extinction);
-                    Float tr_pdf = index_spectrum(pdf, channel);
-                    dr::masked(ss.transmittance, weighted) *=
-                        dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
-                }
-                // Past the emitter
-                dr::masked(ss.total_dist, other && (mei.t > remaining) && mei.is_valid()) =
-                    ds_dist;
-                dr::masked(mei.t, other && (mei.t > remaining)) = dr::Infinity<Float>;
-
-                escaped_medium |= other && !mei.is_valid();
-                active_medium = other && mei.is_valid();
-                is_spectral &= active_medium;
-                not_spectral &= active_medium;
-                dr::masked(ss.total_dist, active_medium) += mei.t;
-                if (dr::any_or<true>(active_medium)) {
-                    dr::masked(ray.o, active_medium) = mei.p;
-                    dr::masked(si.t, active_medium) = si.t - mei.t;
-                    dr::masked(ss.transmittance, is_spectral) *= mei.sigma_n;
-                    dr::masked(ss.transmittance, not_spectral) *=
-                        mei.sigma_n / mei.combined_extinction;
-                }
-            }
-        }
-
-        // Surfaces: null transmission, medium transitions
-        Mask intersect = active_surface && ss.needs_intersection;
-        if (dr::any_or<true>(intersect))
-            dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
-        ss.needs_intersection &= !intersect;
-        active_surface |= escaped_medium;
-        dr::masked(ss.total_dist, active_surface) += si.t;
-
-        active_surface &= si.is_valid() && active && !active_medium;
-        if (dr::any_or<true>(active_surface)) {
-            auto bsdf = si.bsdf(ray);
-            Spectrum bsdf_val = bsdf->eval_null_transmission(si, active_surface);
-            bsdf_val = si.to_world_mueller(bsdf_val, si.wi, si.wi);
-            dr::masked(ss.transmittance, active_surface) *= bsdf_val;
-        }
-
-        dr::masked(ray, active_surface) = si.spawn_ray(ray.d);
-        ray.maxt = remaining;
-        ss.needs_intersection |= active_surface;
-
-        active &= (active_medium || active_surface) &&
-                  dr::any(unpolarized_spectrum(ss.transmittance) != 0.f);
-        Mask has_medium_trans = active_surface && si.is_medium_transition();
-        if (dr::any_or<true>(has_medium_trans))
-            dr::masked(ss.medium, has_medium_trans) = si.target_medium(ray.d);
-    }
-
-    // =====================================================================
-    //  Tracking through a tracked medium, segment by segment of the walk
-    // =====================================================================
-
-    /// The parameter range of `ray` inside the medium's box, up to tmax
-    std::pair<Float, Float> medium_range(const Tracked &k, const Ray3f &ray, const Float &tmax,
-                                         Mask &active) const {
-        auto [hit, mint, maxt] = k.medium->intersect_aabb(ray);
-        mint = dr::maximum(mint, 0.f);
-        maxt = dr::minimum(maxt, tmax);
-        active &= hit && (mint < maxt);
-        return { mint, maxt };
-    }
-
-    /// A medium interaction at distance t along the ray, for evaluating the
-    /// medium there and scattering from it
-    MediumInteraction3f interaction_at(const Tracked &k, const Ray3f &ray, const Float &t,
-                                       const Float &mint) const {
-        MediumInteraction3f mei = dr::zeros<MediumInteraction3f>();
-        mei.wi = -ray.d;
-        mei.sh_frame = Frame3f(mei.wi);
-        mei.time = ray.time;
-        mei.wavelengths = ray.wavelengths;
-        mei.t = t;
-        mei.p = ray(t);
-        mei.medium = MediumPtr(k.medium);
-        mei.mint = mint;
-        return mei;
-    }
-
-    struct Collision {
-        Mask real;                    ///< a real collision at mei (else none before tmax)
-        MediumInteraction3f mei;
-        UnpolarizedSpectrum weight;   ///< the path throughput's factor
-        UInt32 tripped;               ///< loop bounds that stopped the flight (bits)
-    };
-
-    /// A flight through a tracked medium: the walk, the position t along
-    /// the ray, and the optical depth tau left to the next tentative collision
-    struct Flight {
-        Mask alive;     ///< false once the walk has ended (or a real collision)
-        Mask searching; ///< inside next_collision(): not yet at a collision
-        Walk walk;
-        Float t, tau;
-        UInt32 steps, collisions;          ///< walk steps, tentative collisions so far
-        UInt32 max_steps, max_collisions;  ///< their bounds (see LoopBound)
-        UInt32 tripped;                    ///< the bounds that stopped it (bits)
-        DRJIT_STRUCT(Flight, alive, searching, walk, t, tau, steps, collisions, max_steps,
-                     max_collisions, tripped)
-    };
-
-    /// A flight from the start of the medium's range, with a fresh tau
-    Flight begin_flight(const Tracked &k, const WalkRay &wr, const Float &mint,
-                        const Float &maxt, Sampler *sampler, const Mask &active) const {
-        Flight f;
-        f.alive = active;
-        f.searching = false;
-        f.walk = k.volume->walk_begin(wr, mint, maxt, active);
-        f.t = mint;
-        f.tau = -dr::log(1.f - sampler->next_1d(active));
-        f.steps = f.collisions = f.tripped = 0;
-        // Walk steps: every step crosses a cell face, and cells are at least
-        // 8 voxels wide, so a segment crosses at most sum_a |d_a| len / 8 + 3
-        // of them; twice that, and 64 for round-off
-        Float len = dr::maximum(maxt - mint, 0.f),
-              faces = (dr::abs(wr.direction.x()) + dr::abs(wr.direction.y()) +
-                       dr::abs(wr.direction.z())) * len * 0.125f + 3.f;
-        f.max_steps = to_bound(2.f * faces + 64.f);
-        // Tentative collisions: Poisson with a mean of at most T, the global
-        // majorant's optical depth over the range; T + 10 sqrt(T) + 64 is
-        // exceeded with probability below 1e-20
-        Float T = k.max_majorant * len;
-        f.max_collisions = to_bound(T + 10.f * dr::sqrt(T) + 64.f);
-        return f;
-    }
-
-    /// A float bound as an iteration count (NaN, infinity and >= 2^31: 2^31)
-    static UInt32 to_bound(const Float &n) {
-        return dr::select(n < 2147483648.f, UInt32(dr::maximum(n, 0.f)), UInt32(1u << 31));
-    }
-
-    /**
-     * Moves every living flight to its next tentative collision: consumes
-     * tau segment by segment of the walk (tentative collisions come at rate
-     * mu = scale x the segment's bound) until tau < mu x (what is left of
-     * the segment), where t becomes the collision; a flight whose walk ends
-     * first dies. One loop of walk steps only, so that the lookups that
-     * follow run for all lanes of a packet at once.
+    /*
+     * Each loop stops a lane after more iterations than a valid ray can
+     * take, and counts it; render() warns, and to_string() and traverse()
+     * ("loop_bound_trips") show the counts. A trip means a bug or an input
+     * outside what the integrator supports; the lane then ends as if it had
+     * left the medium (or the path had been absorbed), so the image is
+     * finite but biased there.
+     *  - path, shadow ray: kMaxStalls iterations in a row in which the path
+     *    neither scattered nor moved (every valid iteration does one of the
+     *    two, or ends the path), or kMaxLoopSteps in all;
+     *  - walk: a flight's steps beyond twice the cell faces its segment can
+     *    cross (tracking.h, begin_flight);
+     *  - delta, ratio tracking: tentative collisions beyond the Poisson tail
+     *    of the global majorant's optical depth (tracking.h, begin_flight).
      */
-    void next_collision(const Tracked &k, const WalkRay &wr, Flight &flight) const {
-        flight.searching = flight.alive;
-        const ScalarFloat scale = k.scale;
-        dr::tie(flight) = dr::while_loop(
-            dr::make_tuple(flight), [](const Flight &f) { return f.searching; },
-            [k, wr, scale](Flight &f) {
-                Float mu = scale * f.walk.majorant, end = f.walk.segment_end(),
-                      t = dr::maximum(f.t, f.walk.hdda.tmin), depth = mu * (end - t);
-                Mask found = f.searching && (f.tau < depth), miss = f.searching && !found;
-                f.t = dr::select(found, t + f.tau / mu, f.t);
-                f.searching &= !found;
-                dr::masked(f.tau, miss) = f.tau - depth;
-                dr::masked(f.t, miss) = end;
-                Mask more = k.volume->walk_advance(f.walk, wr, miss);
-                f.alive &= !(miss && !more);
-                f.searching &= more;
-                // The loop bound: a stopped walk ends the flight (no collision)
-                dr::masked(f.steps, miss) += 1;
-                Mask trip = f.searching && f.steps > f.max_steps;
-                dr::masked(f.tripped, trip) |= (1u << WalkLoop);
-                f.alive &= !trip;
-                f.searching &= !trip;
-            },
-            "volpathlocal: walk to the next collision");
-    }
-
-    /**
-     * Delta tracking along `ray` through tracked medium k up to tmax (the
-     * nearest surface): tentative collisions from next_collision(), each
-     * real with probability mean(mu_t) / mu. Returns the first real
-     * collision with the weight prod(mu_n / mean(mu_n)) over the null ones
-     * x mu_s / mean(mu_t).
-     */
-    Collision track_collision(const Tracked &k, const Ray3f &ray, const Float &tmax,
-                              Sampler *sampler, Mask active) const {
-        // (not MI_MASKED_FUNCTION: on scalar variants it would make the call active)
-        ScopedPhase scope_phase(ProfilerPhase::MediumSample);
-        auto [mint, maxt] = medium_range(k, ray, tmax, active);
-        const ScalarFloat scale = k.scale;
-        WalkRay wr = k.volume->walk_ray(ray, Float(scale > 0.f ? m_coarse_depth / scale : 0.f),
-                                        active);
-
-        struct TrackState {
-            Flight flight;
-            UnpolarizedSpectrum weight, sigma_s, sigma_t;
-            Float majorant;
-            Mask real;
-            Sampler *sampler;
-            DRJIT_STRUCT(TrackState, flight, weight, sigma_s, sigma_t, majorant, real, sampler)
-        } ts = { begin_flight(k, wr, mint, maxt, sampler, active),
-                 UnpolarizedSpectrum(1.f),
-                 dr::zeros<UnpolarizedSpectrum>(),
-                 dr::zeros<UnpolarizedSpectrum>(),
-                 Float(0.f),
-                 Mask(false),
-                 sampler };
-
-        dr::tie(ts) = dr::while_loop(
-            dr::make_tuple(ts), [](const TrackState &ts) { return ts.flight.alive; },
-            [this, k, ray, wr, mint, scale](TrackState &ts) {
-                next_collision(k, wr, ts.flight);
-                Mask hit = ts.flight.alive;
-                if (dr::none_or<false>(hit))
-                    return; // (scalar: the walk ended)
-                Float mu = scale * ts.flight.walk.majorant;
-                Float xi = ts.sampler->next_1d(hit), u = ts.sampler->next_1d(hit);
-                auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(
-                    interaction_at(k, ray, ts.flight.t, mint), hit);
-                DRJIT_MARK_USED(sigma_n);
-                Float p_real = dr::mean(sigma_t) / mu;
-                Mask real = hit && (xi < p_real), null = hit && !real;
-                dr::masked(ts.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));
-                dr::masked(ts.sigma_s, real) = sigma_s;
-                dr::masked(ts.sigma_t, real) = sigma_t;
-                dr::masked(ts.majorant, real) = mu;
-                dr::masked(ts.flight.tau, null) = -dr::log(1.f - u);
-                ts.real |= real;
-                ts.flight.alive &= !real;
-                count_collision(ts.flight, DeltaLoop, null);
-            },
-            "volpathlocal: delta tracking");
-
-        Collision c;
-        c.real = ts.real;
-        c.tripped = ts.flight.tripped;
-        const Float &t = ts.flight.t;
-        c.mei = interaction_at(k, ray, dr::select(ts.real, t, dr::Infinity<Float>), mint);
-        c.mei.p = ray(t);
-        c.mei.sigma_s = ts.sigma_s;
-        c.mei.sigma_t = ts.sigma_t;
-        c.mei.sigma_n = ts.majorant - ts.sigma_t;
-        c.mei.combined_extinction = ts.majorant;
-        c.weight = ts.weight * ts.sigma_s / dr::mean(ts.sigma_t);
-        return c;
-    }
-
-    /**
-     * Ratio tracking along `ray` through tracked medium k up to tmax: the
-     * transmittance estimate prod(mu_n / mu) over the tentative collisions
-     * of next_collision().
-     */
-    std::pair<UnpolarizedSpectrum, UInt32>
-    track_transmittance(const Tracked &k, const Ray3f &ray, const Float &tmax,
-                        Sampler *sampler, Mask active) const {
-        ScopedPhase scope_phase(ProfilerPhase::MediumEvaluate);
-        auto [mint, maxt] = medium_range(k, ray, tmax, active);
-        const ScalarFloat scale = k.scale;
-        WalkRay wr = k.volume->walk_ray(ray, Float(scale > 0.f ? m_coarse_depth / scale : 0.f),
-                                        active);
-
-        struct RatioState {
-            Flight flight;
-            UnpolarizedSpectrum transmittance;
-            Sampler *sampler;
-            DRJIT_STRUCT(RatioState, flight, transmittance, sampler)
-        } rs = { begin_flight(k, wr, mint, maxt, sampler, active), UnpolarizedSpectrum(1.f),
-                 sampler };
-
-        dr::tie(rs) = dr::while_loop(
-            dr::make_tuple(rs), [](const RatioState &rs) { return rs.flight.alive; },
-            [this, k, ray, wr, mint, scale](RatioState &rs) {
-                next_collision(k, wr, rs.flight);
-                Mask hit = rs.flight.alive;
-                if (dr::none_or<false>(hit))
-                    return;
-                Float mu = scale * rs.flight.walk.majorant;
-                Float u = rs.sampler->next_1d(hit);
-                auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(
-                    interaction_at(k, ray, rs.flight.t, mint), hit);
-                DRJIT_MARK_USED(sigma_s);
-                DRJIT_MARK_USED(sigma_n);
-                dr::masked(rs.transmittance, hit) *= (mu - sigma_t) / mu;
-                dr::masked(rs.flight.tau, hit) = -dr::log(1.f - u);
-                rs.flight.alive &= !(hit && dr::all(rs.transmittance == 0.f));
-                count_collision(rs.flight, RatioLoop, hit);
-            },
-            "volpathlocal: ratio tracking");
-        return { rs.transmittance, rs.flight.tripped };
-    }
-
-    /// A tentative collision of a flight: counted; past its bound the flight
-    /// ends there (as if the walk had ended)
-    void count_collision(Flight &f, LoopBound loop, const Mask &hit) const {
-        dr::masked(f.collisions, hit) += 1;
-        Mask trip = hit && f.alive && f.collisions > f.max_collisions;
-        dr::masked(f.tripped, trip) |= (1u << loop);
-        f.alive &= !trip;
-    }
-
-    // =====================================================================
-    //  Loop bounds: every loop ends, whatever the input
-    // =====================================================================
-
+    static constexpr const char *kLoopNames[LoopCount] = { "path", "shadow ray", "walk",
+                                                           "delta tracking", "ratio tracking" };
+    static constexpr uint32_t kMaxStalls = 16;
+    static constexpr uint32_t kMaxLoopSteps = 1u << 24;
 
     /// One iteration of the path or shadow loop done: `progress` where it
     /// scattered or moved
@@ -1034,39 +970,17 @@ private:
         }
     }
 
-    // =====================================================================
-    //  Helpers
-    // =====================================================================
-
-    MI_INLINE Float index_spectrum(const UnpolarizedSpectrum &spec, const UInt32 &idx) const {
-        Float m = spec[0];
-        if constexpr (is_rgb_v<Spectrum>) {
-            dr::masked(m, idx == 1u) = spec[1];
-            dr::masked(m, idx == 2u) = spec[2];
-        } else {
-            DRJIT_MARK_USED(idx);
-        }
-        return m;
-    }
-
-    Float mis_weight(Float pdf_a, Float pdf_b) const {
-        pdf_a *= pdf_a;
-        pdf_b *= pdf_b;
-        Float w = pdf_a / (pdf_a + pdf_b);
-        return dr::select(dr::isfinite(w), w, 0.f);
-    }
-
     ScalarFloat m_coarse_depth;
     ScalarFloat m_max_ratio;
+    mutable std::vector<TrackedMedium> m_tracked;
+    mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
+    mutable std::mutex m_prepare_mutex;
     mutable UInt32 m_trips;                             ///< per LoopBound (JIT)
     mutable std::atomic<uint32_t> m_scalar_trips[LoopCount] = {}; ///< (scalar)
     mutable uint32_t m_trips_reported[LoopCount] = {};
-    uint32_t m_trip_total_host = 0;                     ///< traverse()'s copy
+    uint32_t m_trip_total_host = 0, m_tracked_host = 0; ///< traverse()'s copies
 
     MI_TRAVERSE_CB(Base, m_trips)
-    mutable std::vector<Tracked> m_tracked;
-    mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
-    mutable std::mutex m_prepare_mutex;
 };
 
 MI_EXPORT_PLUGIN(VolumetricPathLocalMajorants)

@@ -41,6 +41,15 @@ inline std::string version_string(uint32_t v) {
            "." + std::to_string(v & 0x3ffu);
 }
 
+/// "0x0000040000100000"
+inline std::string hex64(uint64_t v) {
+    static const char *digits = "0123456789abcdef";
+    std::string s = "0x";
+    for (int i = 15; i >= 0; --i)
+        s += digits[(v >> (4 * i)) & 15u];
+    return s;
+}
+
 inline uint64_t byte_swap64(uint64_t v) {
     uint64_t r = 0;
     for (int i = 0; i < 8; ++i)

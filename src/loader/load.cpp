@@ -1,4 +1,4 @@
-// src/loader/load.cpp -- decode_grid() (see load.h).
+// src/loader/load.cpp -- decode_grid() and prepare_grid() (see load.h).
 
 #include <nanovdb_loader/load.h>
 
@@ -43,6 +43,33 @@ DecodedGrid decode_grid_bytes(const std::string &label, const std::string &name,
     check_capacity(label, name, dst, dst_bytes, src_bytes);
     std::memcpy(dst, src, size_t(src_bytes));
     return decode_in_place(label, name, dst, src_bytes, policy);
+}
+
+PreparedGrid prepare_grid(const GridSource &source, void *dst, uint64_t dst_bytes,
+                          const PrepareOptions &options) {
+    PreparedGrid p(source.entry ? decode_grid(source.path, *source.entry, dst, dst_bytes,
+                                              options.invalid_values)
+                                : decode_grid_bytes(source.path, source.name, source.bytes,
+                                                    source.size, dst, dst_bytes,
+                                                    options.invalid_values));
+    const bool vec3 = p.grid.summary().grid_type == layout::GRID_TYPE_VEC3F;
+    p.box = options.volume_box ? lookup_box(*options.volume_box, options.ring)
+                               : lookup_box(p.grid.summary(), options.ring);
+    p.max = max_in_box(p.grid, p.box);
+    p.max3 = vec3 ? max_in_box_per_channel(p.grid, p.box) : std::array<float, 3>{ p.max, p.max, p.max };
+    p.grid_max = p.grid.values().max;
+    p.majorants = node_majorants(p.grid);
+    p.mean_bound = mean_bound(p.grid, p.majorants, p.box, p.max);
+    if (vec3 && options.spectral) {
+        // Last: the bounds above are of the colours. A converted value is
+        // scale * S(coefficients), S in [0, 1], scale at most factor x the
+        // colour's largest channel: so are its bounds
+        p.scales = to_spectral_coefficients(p.grid, *options.spectral);
+        p.spectral_factor = options.spectral->factor;
+        p.max *= p.spectral_factor;
+        p.grid_max *= p.spectral_factor;
+    }
+    return p;
 }
 
 } // namespace nanovdb_loader

@@ -4,13 +4,13 @@
 #include <nanovdb_loader/majorants.h>
 
 #include "detail.h"
+#include "tree_view.h"
 #include "value_codec.h"
 
 #include <algorithm>
 #include <climits>
 #include <cmath>
 #include <limits>
-#include <unordered_set>
 
 namespace nanovdb_loader {
 
@@ -39,8 +39,9 @@ class BoxMax {
 public:
     /// per_channel: also the largest value of each channel (Vec3f)
     BoxMax(const ValidatedGrid &grid, const IndexBox &box, bool per_channel = false)
-        : m_grid(grid), m_box(box), m_buf(grid.data()), m_codec(grid.summary().grid_type),
-          m_c(m_codec.constants()), m_per_channel(per_channel && m_codec.channels() > 1) {}
+        : m_grid(grid), m_view(grid), m_box(box), m_buf(grid.data()),
+          m_codec(grid.summary().grid_type),
+          m_per_channel(per_channel && m_codec.channels() > 1) {}
 
     /// The largest value of each channel (valid after run(); -Inf where none)
     float channel_max[3] = { -std::numeric_limits<float>::infinity(),
@@ -48,31 +49,20 @@ public:
                              -std::numeric_limits<float>::infinity() };
 
     float run() {
-        const GridSummary &s = m_grid.summary();
-        const uint64_t root = uint64_t(s.root_word) * 4;
-        std::unordered_set<uint64_t> keys;
         uint64_t covered = 0; // distinct root tiles whose block meets the box
-        for (uint64_t t = 0; t < s.root_tile_count; ++t) {
-            const uint64_t tile = root + m_c.root_size + t * m_c.root_tile_size;
-            const uint64_t key = load<uint64_t>(m_buf + tile + layout::ROOT_TILE_OFF_KEY);
-            // Keys hold three 20-bit block coordinates in 21-bit fields: a tile
-            // with a bit set outside them matches no coordinate
-            constexpr uint64_t unused = (uint64_t(1) << 20) | (uint64_t(1) << 41) |
-                                        (uint64_t(3) << 62);
-            if ((key & unused) || !keys.insert(key).second)
-                continue; // unreachable, or a later tile with the same key
+        for (uint32_t t : m_view.tiles()) {
             int32_t o[3];
-            layout::key_to_origin(key, o);
+            m_view.tile_origin(t, o);
             const int64_t origin[3] = { o[0], o[1], o[2] };
             int64_t first[3], last[3];
             if (!entry_range(origin, 0, layout::ROOT_TILE_LOG2, m_box, first, last))
                 continue;
             ++covered;
-            const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
+            const uint64_t child = m_view.tile_child(t);
             if (child == 0)
-                include_tile(m_buf + tile + m_c.root_tile_off_value);
+                include_tile(m_view.tile_value(t));
             else
-                internal(2, uint64_t(int64_t(root) + child), origin);
+                internal(2, child, origin);
         }
         // Blocks of 4096^3 the box meets; where a root tile covers fewer, a
         // lookup in the box can fall through to the background
@@ -81,7 +71,7 @@ public:
             blocks *= uint64_t((int64_t(m_box.hi[a]) >> layout::ROOT_TILE_LOG2) -
                                (int64_t(m_box.lo[a]) >> layout::ROOT_TILE_LOG2) + 1);
         if (covered < blocks)
-            include_tile(m_buf + root + m_c.root_off_background);
+            include_tile(m_view.background());
         return m_any ? m_max : std::numeric_limits<float>::quiet_NaN();
     }
 
@@ -100,42 +90,34 @@ private:
                 if (!std::isnan(v[k]))
                     channel_max[k] = std::max(channel_max[k], v[k]);
     }
-    void include_tile(const uint8_t *p) {
+    /// The tile value at byte `at`
+    void include_tile(uint64_t at) {
         float v[3] = { 0.f, 0.f, 0.f };
-        m_codec.tile(p, v);
+        m_codec.tile(m_buf + at, v);
         include_value(v);
     }
 
     /// An upper (level 2) or lower (level 1) node at byte `node`
     void internal(int level, uint64_t node, const int64_t origin[3]) {
-        const bool upper = level == 2;
-        const uint32_t log2dim = upper ? layout::UPPER_LOG2_DIM : layout::LOWER_LOG2_DIM,
-                       log2entry = upper ? layout::UPPER_ENTRY_LOG2 : layout::LOWER_ENTRY_LOG2;
-        const uint64_t mask_off = upper ? layout::UPPER_OFF_CHILD_MASK : layout::LOWER_OFF_CHILD_MASK,
-                       table_off = upper ? m_c.upper_off_table : m_c.lower_off_table;
+        const NodeLevel &l = m_view.level(level);
         int64_t first[3], last[3];
-        if (!entry_range(origin, log2dim, log2entry, m_box, first, last))
+        if (!entry_range(origin, l.log2dim, l.log2entry, m_box, first, last))
             return;
         for (int64_t i = first[0]; i <= last[0]; ++i)
             for (int64_t j = first[1]; j <= last[1]; ++j)
                 for (int64_t k = first[2]; k <= last[2]; ++k) {
-                    const uint64_t e = (uint64_t(i) << (2 * log2dim)) | (uint64_t(j) << log2dim) |
-                                       uint64_t(k);
-                    const uint64_t entry = node + table_off + e * m_c.table_stride;
-                    const bool child =
-                        (load<uint32_t>(m_buf + node + mask_off + 4 * (e >> 5)) >> (e & 31)) & 1u;
-                    if (!child) {
-                        include_tile(m_buf + entry);
+                    const uint32_t e = uint32_t((i << (2 * l.log2dim)) | (j << l.log2dim) | k);
+                    if (!m_view.child_bit(level, node, e)) {
+                        include_tile(m_view.entry(level, node, e));
                         continue;
                     }
-                    const int64_t sub[3] = { origin[0] + (i << log2entry),
-                                             origin[1] + (j << log2entry),
-                                             origin[2] + (k << log2entry) };
-                    const uint64_t target = uint64_t(int64_t(node) + load<int64_t>(m_buf + entry));
-                    if (upper)
-                        internal(1, target, sub);
+                    const int64_t sub[3] = { origin[0] + (i << l.log2entry),
+                                             origin[1] + (j << l.log2entry),
+                                             origin[2] + (k << l.log2entry) };
+                    if (level == 2)
+                        internal(1, m_view.child(level, node, e), sub);
                     else
-                        leaf(target, sub);
+                        leaf(m_view.child(level, node, e), sub);
                 }
     }
 
@@ -146,7 +128,7 @@ private:
         const bool whole = first[0] == 0 && first[1] == 0 && first[2] == 0 && last[0] == 7 &&
                            last[1] == 7 && last[2] == 7;
         if (whole && !m_per_channel) {
-            include(m_grid.leaf_max()[size_t(m_grid.leaf_containing(node))]);
+            include(m_grid.leaf_max()[size_t(m_view.node_index(0, node))]);
             return;
         }
         for (int64_t i = first[0]; i <= last[0]; ++i)
@@ -159,10 +141,10 @@ private:
     }
 
     const ValidatedGrid &m_grid;
+    const TreeView m_view;
     const IndexBox m_box;
     const uint8_t *m_buf;
     const detail::ValueCodec m_codec;
-    const layout::GridTypeConstants &m_c;
     const bool m_per_channel;
     float m_max = 0.f;
     bool m_any = false;

@@ -6,11 +6,11 @@
 #include <nanovdb_loader/majorants.h>
 
 #include "detail.h"
+#include "tree_view.h"
 #include "value_codec.h"
 
 #include <algorithm>
 #include <cstring>
-#include <unordered_set>
 
 namespace nanovdb_loader {
 
@@ -23,32 +23,23 @@ class MeanBound {
 public:
     MeanBound(const ValidatedGrid &grid, const NodeMajorants &maj, const IndexBox &box,
               float clamp)
-        : m_grid(grid), m_buf(grid.data()), m_s(grid.summary()),
-          m_codec(m_s.grid_type), m_c(m_codec.constants()), m_t(maj.layout),
+        : m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type), m_t(maj.layout),
           m_v(maj.values), m_box(box), m_clamp(clamp) {}
 
     double run() {
-        const uint64_t root = uint64_t(m_s.root_word) * 4;
-        std::unordered_set<uint64_t> seen;
         double covered = 0.0;
-        for (uint32_t t = 0; t < m_s.root_tile_count; ++t) {
-            const uint64_t tile = root + m_c.root_size + uint64_t(t) * m_c.root_tile_size;
-            const uint64_t key = load<uint64_t>(m_buf + tile + layout::ROOT_TILE_OFF_KEY);
-            constexpr uint64_t unused = (uint64_t(1) << 20) | (uint64_t(1) << 41) |
-                                        (uint64_t(3) << 62);
-            if ((key & unused) || !seen.insert(key).second)
-                continue;
+        for (uint32_t t : m_view.tiles()) {
             int32_t o[3];
-            layout::key_to_origin(key, o);
+            m_view.tile_origin(t, o);
             const double vol = overlap(o, layout::ROOT_TILE_LOG2);
             if (vol == 0.0)
                 continue;
             covered += vol;
-            const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
+            const uint64_t child = m_view.tile_child(t);
             if (child == 0)
                 add(m_v[m_t.tile_slot + t], vol);
             else
-                upper(uint64_t(int64_t(root) + child), o);
+                upper(child, o);
         }
         add(m_v[m_t.background_slot], box_volume() - covered);
         return m_sum / box_volume();
@@ -84,31 +75,28 @@ private:
     static bool uniform(float M, float m) { return !(M - m > 0.f); }
 
     void upper(uint64_t node, const int32_t o[3]) {
-        const uint32_t slot = m_t.upper_slot + nanovdb_drjit::UPPER_SLOTS *
-                                                   uint32_t((node - m_s.node_begin[2]) / m_c.upper_size);
+        const uint32_t slot =
+            m_t.upper_slot + nanovdb_drjit::UPPER_SLOTS * uint32_t(m_view.node_index(2, node));
         if (uniform(m_v[slot], m_v[slot + 2])) {
             add(m_v[slot], overlap(o, layout::ROOT_TILE_LOG2));
             return;
         }
         for (uint32_t n = 0; n < layout::UPPER_TABLE_COUNT; ++n) {
-            const int32_t eo[3] = { wrap_add(o[0], int64_t(n >> 10) << 7),
-                                    wrap_add(o[1], int64_t((n >> 5) & 31) << 7),
-                                    wrap_add(o[2], int64_t(n & 31) << 7) };
+            int32_t eo[3];
+            m_view.entry_origin(2, o, n, eo);
             const double vol = overlap(eo, layout::UPPER_ENTRY_LOG2);
             if (vol == 0.0)
                 continue;
-            const uint64_t e = node + m_c.upper_off_table + uint64_t(n) * m_c.table_stride;
-            if ((load<uint32_t>(m_buf + node + layout::UPPER_OFF_CHILD_MASK + 4 * (n >> 5)) >>
-                 (n & 31)) & 1u)
-                lower(uint64_t(int64_t(node) + load<int64_t>(m_buf + e)), eo);
+            if (m_view.child_bit(2, node, n))
+                lower(m_view.child(2, node, n), eo);
             else
-                add(std::max(m_codec.tile_bound(m_buf + e), m_v[slot + 1]), vol);
+                add(std::max(m_codec.tile_bound(m_buf + m_view.entry(2, node, n)), m_v[slot + 1]), vol);
         }
     }
 
     void lower(uint64_t node, const int32_t o[3]) {
-        const uint32_t slot = m_t.lower_slot + nanovdb_drjit::LOWER_SLOTS *
-                                                   uint32_t((node - m_s.node_begin[1]) / m_c.lower_size);
+        const uint32_t slot =
+            m_t.lower_slot + nanovdb_drjit::LOWER_SLOTS * uint32_t(m_view.node_index(1, node));
         const float M = m_v[slot], R = m_v[slot + 1], m = m_v[slot + 2];
         if (uniform(M, m)) {
             add(M, overlap(o, layout::UPPER_ENTRY_LOG2));
@@ -116,9 +104,8 @@ private:
         }
         for (uint32_t n = 0; n < layout::LOWER_TABLE_COUNT; ++n) {
             const uint32_t i = n >> 8, j = (n >> 4) & 15, k = n & 15;
-            const int32_t eo[3] = { wrap_add(o[0], int64_t(i) << 3),
-                                    wrap_add(o[1], int64_t(j) << 3),
-                                    wrap_add(o[2], int64_t(k) << 3) };
+            int32_t eo[3];
+            m_view.entry_origin(1, o, n, eo);
             const double vol = overlap(eo, layout::LOWER_ENTRY_LOG2);
             if (vol == 0.0)
                 continue;
@@ -130,22 +117,17 @@ private:
                 add(brick, vol);
                 continue;
             }
-            const uint64_t e = node + m_c.lower_off_table + uint64_t(n) * m_c.table_stride;
-            if ((load<uint32_t>(m_buf + node + layout::LOWER_OFF_CHILD_MASK + 4 * (n >> 5)) >>
-                 (n & 31)) & 1u) {
-                const uint64_t leaf = uint64_t(int64_t(node) + load<int64_t>(m_buf + e));
-                add(m_v[m_t.leaf_slot(uint32_t(leaf / 4))], vol);
-            } else {
-                add(std::max(m_codec.tile_bound(m_buf + e), std::min(R, brick)), vol);
-            }
+            if (m_view.child_bit(1, node, n))
+                add(m_v[m_t.leaf_slot(uint32_t(m_view.child(1, node, n) / 4))], vol);
+            else
+                add(std::max(m_codec.tile_bound(m_buf + m_view.entry(1, node, n)), std::min(R, brick)),
+                    vol);
         }
     }
 
-    const ValidatedGrid &m_grid;
+    const TreeView m_view;
     const uint8_t *m_buf;
-    const GridSummary &m_s;
     const detail::ValueCodec m_codec;
-    const layout::GridTypeConstants &m_c;
     const nanovdb_drjit::MajorantTableLayout &m_t;
     const std::vector<float> &m_v;
     const IndexBox m_box;

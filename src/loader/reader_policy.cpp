@@ -3,6 +3,7 @@
 #include <nanovdb_loader/reader_policy.h>
 
 #include "detail.h"
+#include "tree_view.h"
 
 #include <algorithm>
 #include <climits>
@@ -32,17 +33,16 @@ bool has_compact_offsets(const ValidatedGrid &grid) {
 }
 
 bool build_root_index(const ValidatedGrid &grid, uint64_t max_entries, ReaderPlan &plan) {
-    const GridSummary &s = grid.summary();
-    const layout::GridTypeConstants &c = *layout::grid_type_constants(s.grid_type);
-    const uint8_t *buf = grid.data();
-    const uint64_t tiles = uint64_t(s.root_word) * 4 + c.root_size;
+    // The tiles lookups reach, one per key (the first, as the linear search
+    // finds it); validation refused keys that no coordinate has, so each
+    // key is a block and each block has at most one tile
+    const TreeView view(grid);
     auto tile_block = [&](uint32_t t, int32_t block[3]) {
-        layout::key_to_block(load<uint64_t>(buf + tiles + uint64_t(t) * c.root_tile_size +
-                                            layout::ROOT_TILE_OFF_KEY), block);
+        layout::key_to_block(view.tile_key(t), block);
     };
     int64_t lo[3] = { INT64_MAX, INT64_MAX, INT64_MAX },
             hi[3] = { INT64_MIN, INT64_MIN, INT64_MIN };
-    for (uint32_t t = 0; t < s.root_tile_count; ++t) {
+    for (uint32_t t : view.tiles()) {
         int32_t b[3];
         tile_block(t, b);
         for (int k = 0; k < 3; ++k) {
@@ -50,7 +50,7 @@ bool build_root_index(const ValidatedGrid &grid, uint64_t max_entries, ReaderPla
             hi[k] = std::max<int64_t>(hi[k], b[k]);
         }
     }
-    if (s.root_tile_count == 0)
+    if (view.tiles().empty())
         for (int k = 0; k < 3; ++k)
             lo[k] = hi[k] = 0;
     uint64_t entries = 1;
@@ -62,16 +62,14 @@ bool build_root_index(const ValidatedGrid &grid, uint64_t max_entries, ReaderPla
     plan.root_table.assign(entries, 0u);
     for (int k = 0; k < 3; ++k) {
         plan.block_min[k] = int32_t(lo[k]);
-        plan.block_dims[k] = s.root_tile_count ? int32_t(hi[k] - lo[k] + 1) : 0;
+        plan.block_dims[k] = view.tiles().empty() ? 0 : int32_t(hi[k] - lo[k] + 1);
     }
-    for (uint32_t t = 0; t < s.root_tile_count; ++t) {
+    for (uint32_t t : view.tiles()) {
         int32_t b[3];
         tile_block(t, b);
-        uint64_t i = uint64_t(((b[0] - lo[0]) * plan.block_dims[1] + (b[1] - lo[1])) *
-                                  plan.block_dims[2] + (b[2] - lo[2]));
-        uint64_t tile_word = (tiles + uint64_t(t) * c.root_tile_size) / 4;
-        if (plan.root_table[i] == 0) // like the linear search: the first match wins
-            plan.root_table[i] = uint32_t(tile_word);
+        const uint64_t i = uint64_t(((b[0] - lo[0]) * plan.block_dims[1] + (b[1] - lo[1])) *
+                                        plan.block_dims[2] + (b[2] - lo[2]));
+        plan.root_table[i] = uint32_t(view.tile(t) / 4);
     }
     return true;
 }

@@ -1,11 +1,13 @@
 // src/loader/validation.cpp -- validate_grid() (see validation.h), in
 // four steps: the grid header, the regions of the tree (node arrays, root,
-// disjointness), then one walk over the tree that checks every child offset
-// and accumulates the values.
+// disjointness), the header fields, then one walk over the tree (through
+// tree_view.h) that checks every root key and child offset and accumulates
+// the values.
 
 #include <nanovdb_loader/validation.h>
 
 #include "detail.h"
+#include "tree_view.h"
 #include "value_codec.h"
 #include "value_stats.h"
 
@@ -202,70 +204,63 @@ TreeRegions check_regions(const std::string &path, const uint8_t *buf, uint64_t 
 }
 
 /**
- * Step 3: one walk over the tree in buffer order. Every child offset must
- * point exactly at a node of the level below; every value that is not a
- * child goes to the accumulator.
+ * Step 4: one walk over the tree in buffer order. Every root tile key must be
+ * one a coordinate has, every child offset must point exactly at a node of
+ * the level below; every value that is not a child goes to the accumulator.
  */
 class TreeWalk {
 public:
-    TreeWalk(const std::string &path, const uint8_t *buf, const TreeRegions &g,
-             const ValueCodec &codec)
-        : m_path(path), m_buf(buf), m_g(g), m_codec(codec), m_c(codec.constants()) {}
+    TreeWalk(const std::string &path, const TreeView &view, const uint8_t *buf,
+             const TreeRegions &g, const ValueCodec &codec)
+        : m_path(path), m_view(view), m_buf(buf), m_g(g), m_codec(codec) {}
 
     /// The smallest and largest value of every leaf (NaN skipped), in leaf
     /// array order
     std::vector<float> leaf_min, leaf_max;
 
     ValueStats run() {
-        tile_value(m_g.root + m_c.root_off_background);
         root_tiles();
-        internal_nodes(m_g.upper, m_g.lower, layout::UPPER_OFF_CHILD_MASK, m_c.upper_off_table,
-                       layout::UPPER_TABLE_COUNT);
-        internal_nodes(m_g.lower, m_g.leaf, layout::LOWER_OFF_CHILD_MASK, m_c.lower_off_table,
-                       layout::LOWER_TABLE_COUNT);
+        internal_nodes(2, m_g.upper, m_g.lower);
+        internal_nodes(1, m_g.lower, m_g.leaf);
+        m_view.for_each_tile_value([&](uint64_t at, int, uint32_t) { tile_value(at); });
         leaves();
         return m_values.finish();
     }
 
 private:
-    /// Root tiles: PNanoVDB follows a non-zero child, else reads the tile value
+    /// Root tiles: a key that no coordinate has, or a child offset that
+    /// misses the upper nodes, is refused. (PNanoVDB follows a non-zero
+    /// child, else reads the tile value.)
     void root_tiles() {
-        for (uint64_t i = 0; i < m_g.table_size; ++i) {
-            const uint64_t tile = m_g.root + m_c.root_size + i * m_c.root_tile_size;
-            const int64_t child = load<int64_t>(m_buf + tile + layout::ROOT_TILE_OFF_CHILD);
-            if (child == 0) {
-                tile_value(tile + m_c.root_tile_off_value);
-                continue;
-            }
-            check_child(m_g.upper, m_g.root, child, [&] {
-                return "root tile " + std::to_string(i) + " (key " +
-                       std::to_string(load<uint64_t>(m_buf + tile + layout::ROOT_TILE_OFF_KEY)) +
-                       ")";
-            });
+        for (uint32_t t = 0; t < m_view.tile_count(); ++t) {
+            const uint64_t key = m_view.tile_key(t);
+            if (key & UNUSED_KEY_BITS)
+                fail(m_path, "root tile " + std::to_string(t) + " (byte " +
+                                 std::to_string(m_view.tile(t)) + ") has key " + hex64(key) +
+                                 " with " + describe_unused_key_bits(key & UNUSED_KEY_BITS) +
+                                 " set: a key holds three 20-bit block coordinates in 21-bit "
+                                 "fields, so no coordinate has this key (PNanoVDB never "
+                                 "finds the tile; an index by block would)");
+            const int64_t child = load<int64_t>(m_buf + m_view.tile(t) + layout::ROOT_TILE_OFF_CHILD);
+            if (child != 0)
+                check_child(m_g.upper, m_g.root, child, [&] {
+                    return "root tile " + std::to_string(t) + " (key " + hex64(key) + ")";
+                });
         }
     }
 
-    /// Internal nodes: each child-mask bit selects a child offset (relative
-    /// to the node) or, when clear, a tile value in the same table entry
-    void internal_nodes(const NodeArray &level, const NodeArray &below, uint64_t mask_off,
-                        uint64_t table_off, uint64_t table_count) {
-        for (uint64_t n = 0; n < level.count; ++n) {
-            const uint64_t node = level.begin + n * level.node_size;
-            for (uint64_t w = 0; w < table_count / 32; ++w) {
-                const uint32_t mask = load<uint32_t>(m_buf + node + mask_off + 4 * w);
-                for (uint64_t b = 0; b < 32; ++b) {
-                    const uint64_t k = w * 32 + b,
-                                   entry = node + table_off + k * m_c.table_stride;
-                    if (!(mask & (uint32_t(1) << b))) {
-                        tile_value(entry);
-                        continue;
-                    }
-                    check_child(below, node, load<int64_t>(m_buf + entry), [&] {
-                        return std::string(level.name) + " node " + std::to_string(n) +
-                               " (byte " + std::to_string(node) + ") table entry " +
-                               std::to_string(k);
-                    });
-                }
+    /// Internal nodes of `level`: each child-mask bit selects a child offset
+    /// (relative to the node) or, when clear, a tile value in the same entry
+    void internal_nodes(int level, const NodeArray &nodes, const NodeArray &below) {
+        for (uint64_t n = 0; n < nodes.count; ++n) {
+            const uint64_t node = m_view.node(level, n);
+            for (uint32_t e = 0; e < m_view.level(level).table_count; ++e) {
+                if (!m_view.child_bit(level, node, e))
+                    continue;
+                check_child(below, node, load<int64_t>(m_buf + m_view.entry(level, node, e)), [&] {
+                    return std::string(nodes.name) + " node " + std::to_string(n) + " (byte " +
+                           std::to_string(node) + ") table entry " + std::to_string(e);
+                });
             }
         }
     }
@@ -286,9 +281,9 @@ private:
         const uint32_t channels = m_codec.channels();
         std::vector<float> decoded(layout::LEAF_TABLE_COUNT * channels);
         for (uint64_t n = 0; n < m_g.leaf.count; ++n) {
-            const uint64_t leaf = m_g.leaf.node_size ? m_g.leaf.begin + n * m_g.leaf.node_size
-                                                     : m_g.leaf.starts[size_t(n)];
-            const float *values = reinterpret_cast<const float *>(m_buf + leaf + m_c.leaf_off_table);
+            const uint64_t leaf = m_view.node(0, n);
+            const float *values =
+                reinterpret_cast<const float *>(m_buf + leaf + m_view.level(0).table_off);
             if (m_codec.type().codec != layout::LeafCodec::Float32) {
                 m_codec.leaf(m_buf + leaf, decoded.data());
                 values = decoded.data();
@@ -336,14 +331,15 @@ private:
     }
 
     const std::string &m_path;
+    const TreeView &m_view;
     const uint8_t *m_buf;
     const TreeRegions &m_g;
     const ValueCodec &m_codec;
-    const layout::GridTypeConstants &m_c;
     ValueAccumulator m_values;
 };
 
-/// Step 4: the header fields the rest of the pipeline needs
+/// Step 3: the header fields the rest of the pipeline needs (and the walk
+/// reads the tree with)
 GridSummary summarize(const uint8_t *buf, const TreeRegions &g, const std::string &name,
                       const ValueCodec &codec) {
     const layout::GridTypeConstants &c = codec.constants();
@@ -397,18 +393,22 @@ ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t 
     const ValueCodec codec(load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE));
     TreeRegions regions = check_regions(path, buf, end, codec);
 
+    // The grid's geometry first, for the tree view the walk reads through
     ValidatedGrid grid;
-    TreeWalk walk(path, buf, regions, codec);
-    grid.m_values = walk.run();
-    grid.m_leaf_min = std::move(walk.leaf_min);
-    grid.m_leaf_max = std::move(walk.leaf_max);
     grid.m_summary = summarize(buf, regions, name, codec);
     grid.m_leaf_size = regions.leaf.node_size;
-    grid.m_leaf_offsets = std::move(regions.leaf.starts);
+    grid.m_leaf_offsets = regions.leaf.starts;
     grid.m_path = path;
     grid.m_data = buf;
     grid.m_bytes = bytes;
     grid.m_writable = false;
+    {
+        const TreeView view(grid);
+        TreeWalk walk(path, view, buf, regions, codec);
+        grid.m_values = walk.run();
+        grid.m_leaf_min = std::move(walk.leaf_min);
+        grid.m_leaf_max = std::move(walk.leaf_max);
+    }
     return grid;
 }
 

@@ -3,7 +3,9 @@
 #include <nanovdb_loader/values.h>
 
 #include "detail.h"
+#include "tree_view.h"
 #include "value_codec.h"
+#include "value_rewriter.h"
 #include "value_stats.h"
 
 #include <cmath>
@@ -11,105 +13,40 @@
 
 namespace nanovdb_loader {
 
-/// The one writer of a ValidatedGrid's values (a friend of the class)
-struct ValueRewriter {
-    /// The buffer, for writing; Error if it was validated as read-only
-    static uint8_t *data(ValidatedGrid &grid) {
-        if (!grid.m_writable)
-            detail::fail(grid.m_path, "internal error: sanitize_values() on a grid "
-                                      "validated from a read-only buffer");
-        return grid.m_data;
-    }
-    static void set_values(ValidatedGrid &grid, const ValueStats &stats,
-                           std::vector<float> leaf_min, std::vector<float> leaf_max) {
-        grid.m_values = stats;
-        grid.m_leaf_min = std::move(leaf_min);
-        grid.m_leaf_max = std::move(leaf_max);
-    }
-};
-
 namespace {
 
 using namespace detail;
 
-const layout::GridTypeConstants &constants(const ValidatedGrid &grid) {
-    return *layout::grid_type_constants(grid.summary().grid_type);
-}
-
-/// Levels 0 (leaf), 1 (lower), 2 (upper): node size, the entry table, and
-/// the log2 of the entries per axis and of the voxels an entry spans
-struct Level {
-    uint64_t node_size, table_off, table_stride, mask_off, table_count;
-    uint32_t log2dim, log2entry;
-};
-
-Level level_of(const layout::GridTypeConstants &c, int level) {
-    switch (level) {
-        case 0: return { c.leaf_size, c.leaf_off_table, c.value_stride_bits / 8, 0,
-                         layout::LEAF_TABLE_COUNT, layout::LEAF_LOG2_DIM, 0 };
-        case 1: return { c.lower_size, c.lower_off_table, c.table_stride,
-                         layout::LOWER_OFF_CHILD_MASK, layout::LOWER_TABLE_COUNT,
-                         layout::LOWER_LOG2_DIM, layout::LOWER_ENTRY_LOG2 };
-        default: return { c.upper_size, c.upper_off_table, c.table_stride,
-                          layout::UPPER_OFF_CHILD_MASK, layout::UPPER_TABLE_COUNT,
-                          layout::UPPER_LOG2_DIM, layout::UPPER_ENTRY_LOG2 };
-    }
-}
-
-bool child_bit(const uint8_t *node, const Level &l, uint64_t e) {
-    return (load<uint32_t>(node + l.mask_off + 4 * (e >> 5)) >> (e & 31)) & 1u;
-}
-
-/// Table entry e of a node whose first voxel is `o`: the entry's first voxel
-void entry_origin(uint64_t e, const Level &l, const int32_t *o, int32_t *out) {
-    const uint64_t mask = (uint64_t(1) << l.log2dim) - 1;
-    const uint64_t i = e >> (2 * l.log2dim), j = (e >> l.log2dim) & mask, k = e & mask;
-    out[0] = int32_t(uint32_t(o[0]) + (uint32_t(i) << l.log2entry));
-    out[1] = int32_t(uint32_t(o[1]) + (uint32_t(j) << l.log2entry));
-    out[2] = int32_t(uint32_t(o[2]) + (uint32_t(k) << l.log2entry));
-}
-
-/// The first voxel of every node, from the root keys down (first path wins);
-/// nodes that no root tile reaches keep `set == false`
+/// The first voxel of every node, from the root keys down (first path wins;
+/// every root tile in table order, a later one repeating a key too); nodes
+/// that no root tile reaches keep `set == false`
 struct NodeOrigins {
     struct Origin { int32_t ijk[3]; bool set; };
     std::vector<Origin> origin[3]; // leaf, lower, upper
 
-    explicit NodeOrigins(const ValidatedGrid &grid) {
-        const GridSummary &s = grid.summary();
-        const layout::GridTypeConstants &c = constants(grid);
-        const uint8_t *buf = grid.data();
+    explicit NodeOrigins(const TreeView &view) {
         for (int l = 0; l < 3; ++l)
-            origin[l].assign(s.node_count[l], Origin{ { 0, 0, 0 }, false });
-        auto child_index = [&](int level, uint64_t parent, int64_t delta) {
-            const uint64_t target = uint64_t(int64_t(parent) + delta); // validated
-            if (level == 0)
-                return size_t(grid.leaf_containing(target));
-            return size_t((target - s.node_begin[level]) / level_of(c, level).node_size);
-        };
-        const uint64_t root = uint64_t(s.root_word) * 4;
-        for (uint64_t i = 0; i < s.root_tile_count; ++i) {
-            const uint8_t *tile = buf + root + c.root_size + i * c.root_tile_size;
-            const int64_t child = load<int64_t>(tile + layout::ROOT_TILE_OFF_CHILD);
+            origin[l].assign(view.node_count(l), Origin{ { 0, 0, 0 }, false });
+        for (uint32_t t = 0; t < view.tile_count(); ++t) {
+            const uint64_t child = view.tile_child(t);
             if (child == 0) continue;
-            Origin &o = origin[2][child_index(2, root, child)];
+            Origin &o = origin[2][view.node_index(2, child)];
             if (o.set) continue;
-            layout::key_to_origin(load<uint64_t>(tile + layout::ROOT_TILE_OFF_KEY), o.ijk);
+            view.tile_origin(t, o.ijk);
             o.set = true;
         }
         for (int level : { 2, 1 }) {
-            const Level l = level_of(c, level);
-            for (uint64_t n = 0; n < s.node_count[level]; ++n) {
+            for (uint64_t n = 0; n < view.node_count(level); ++n) {
                 const Origin &o = origin[level][size_t(n)];
                 if (!o.set) continue; // unreachable: its children keep no origin from it
-                const uint64_t node = s.node_begin[level] + n * l.node_size;
-                for (uint64_t e = 0; e < l.table_count; ++e) {
-                    if (!child_bit(buf + node, l, e))
+                const uint64_t node = view.node(level, n);
+                for (uint32_t e = 0; e < view.level(level).table_count; ++e) {
+                    if (!view.child_bit(level, node, e))
                         continue;
-                    Origin &child = origin[level - 1][child_index(
-                        level - 1, node, load<int64_t>(buf + node + l.table_off + e * l.table_stride))];
+                    const uint64_t below = view.node_index(level - 1, view.child(level, node, e));
+                    Origin &child = origin[level - 1][size_t(below)];
                     if (child.set) continue;
-                    entry_origin(e, l, o.ijk, child.ijk);
+                    view.entry_origin(level, o.ijk, e, child.ijk);
                     child.set = true;
                 }
             }
@@ -117,37 +54,10 @@ struct NodeOrigins {
     }
 };
 
-/// Visits every value outside the leaves that validation counts, in the same
-/// order, as f(pointer to the value (maybe unaligned), its byte offset)
-template <typename F> void for_each_tile_value(ValidatedGrid &grid, F &&f) {
-    const GridSummary &s = grid.summary();
-    const layout::GridTypeConstants &c = constants(grid);
-    uint8_t *buf = ValueRewriter::data(grid);
-    const uint64_t root = uint64_t(s.root_word) * 4;
-    f(buf + root + c.root_off_background, root + c.root_off_background);
-    for (uint64_t i = 0; i < s.root_tile_count; ++i) {
-        const uint64_t tile = root + c.root_size + i * c.root_tile_size;
-        if (load<int64_t>(buf + tile + layout::ROOT_TILE_OFF_CHILD) == 0)
-            f(buf + tile + c.root_tile_off_value, tile + c.root_tile_off_value);
-    }
-    for (int level : { 2, 1 }) {
-        const Level l = level_of(c, level);
-        for (uint64_t n = 0; n < s.node_count[level]; ++n) {
-            const uint64_t node = s.node_begin[level] + n * l.node_size;
-            for (uint64_t e = 0; e < l.table_count; ++e) {
-                if (child_bit(buf + node, l, e))
-                    continue;
-                const uint64_t at = node + l.table_off + e * l.table_stride;
-                f(buf + at, at);
-            }
-        }
-    }
-}
-
 /// loc.level and loc.ijk of entry e of node n (at byte `node`) of `level`
-void locate_entry(const ValidatedGrid &grid, int level, size_t n, uint64_t node, uint64_t e,
+void locate_entry(const TreeView &view, int level, size_t n, uint64_t node, uint32_t e,
                   ValueLocation &loc) {
-    const NodeOrigins origins(grid);
+    const NodeOrigins origins(view);
     const NodeOrigins::Origin &o = origins.origin[level][n];
     int32_t base[3];
     if (o.set) {
@@ -155,46 +65,41 @@ void locate_entry(const ValidatedGrid &grid, int level, size_t n, uint64_t node,
     } else { // the node's own bbox minimum, rounded down to the node size
         const uint32_t m = level == 0 ? 7u : level == 1 ? 127u : 4095u;
         for (int k = 0; k < 3; ++k)
-            base[k] = int32_t(load<uint32_t>(grid.data() + node + 4 * k) & ~m);
+            base[k] = int32_t(load<uint32_t>(view.data() + node + 4 * k) & ~m);
         loc.reachable = false;
     }
     loc.level = uint32_t(level);
-    entry_origin(e, level_of(constants(grid), level), base, loc.ijk);
+    view.entry_origin(level, base, e, loc.ijk);
 }
 
 } // namespace
 
 ValueLocation locate_value(const ValidatedGrid &grid, uint64_t key) {
-    const GridSummary &s = grid.summary();
-    const layout::GridTypeConstants &c = constants(grid);
-    const uint8_t *buf = grid.data();
-    const uint64_t root = uint64_t(s.root_word) * 4,
-                   tiles = root + c.root_size;
+    const TreeView view(grid);
     ValueLocation loc;
     if (key & ValueStats::LEAF_VALUE) { // leaf index << 9 | n
-        const uint64_t leaf = (key & ~ValueStats::LEAF_VALUE) >> 9, node = grid.leaf_byte(leaf);
+        const uint64_t leaf = (key & ~ValueStats::LEAF_VALUE) >> 9, node = view.node(0, leaf);
         const uint32_t n = uint32_t(key & 511u);
-        loc.byte = node + ValueCodec(s.grid_type).leaf_value_offset(n);
-        locate_entry(grid, 0, size_t(leaf), node, n, loc);
+        loc.byte = node + ValueCodec(grid.summary().grid_type).leaf_value_offset(n);
+        locate_entry(view, 0, size_t(leaf), node, n, loc);
         return loc;
     }
     const uint64_t byte = key;
     loc.byte = byte;
-    if (byte >= tiles && byte < tiles + uint64_t(s.root_tile_count) * c.root_tile_size) {
-        const uint64_t tile = tiles + (byte - tiles) / c.root_tile_size * c.root_tile_size;
+    const uint64_t tiles = view.tile(0), tile_size = view.tile(1) - tiles;
+    if (byte >= tiles && byte < view.tile(view.tile_count())) {
         loc.level = 3;
-        layout::key_to_origin(load<uint64_t>(buf + tile + layout::ROOT_TILE_OFF_KEY), loc.ijk);
+        view.tile_origin(uint32_t((byte - tiles) / tile_size), loc.ijk);
         return loc;
     }
     for (int level : { 2, 1 }) {
-        const Level l = level_of(c, level);
-        const uint64_t begin = s.node_begin[level], end = s.node_end[level];
-        if (s.node_count[level] == 0 || byte < begin || byte >= end)
+        const GridSummary &s = grid.summary();
+        if (s.node_count[level] == 0 || byte < s.node_begin[level] || byte >= s.node_end[level])
             continue;
-        const uint64_t n = (byte - begin) / l.node_size,
-                       node = begin + n * l.node_size,
-                       e = (byte - node - l.table_off) / l.table_stride;
-        locate_entry(grid, level, size_t(n), node, e, loc);
+        const NodeLevel &l = view.level(level);
+        const uint64_t n = view.node_index(level, byte), node = view.node(level, n);
+        locate_entry(view, level, size_t(n), node,
+                     uint32_t((byte - node - l.table_off) / l.table_stride), loc);
         return loc;
     }
     return loc; // the background
@@ -301,7 +206,9 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
             std::memcpy(p, &v, 4);
         }
     };
-    for_each_tile_value(grid, [&](uint8_t *p, uint64_t byte) {
+    uint8_t *buf = ValueRewriter::data(grid);
+    TreeView(grid).for_each_tile_value([&](uint64_t byte, int, uint32_t) {
+        uint8_t *p = buf + byte;
         float v[3] = { 0.f, 0.f, 0.f };
         codec.tile(p, v);
         for (uint32_t k = 0; k < channels; ++k) {
@@ -313,7 +220,6 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
     });
     std::vector<float> leaf_min(s.node_count[0], std::numeric_limits<float>::infinity()),
                        leaf_max(s.node_count[0], -std::numeric_limits<float>::infinity());
-    uint8_t *buf = ValueRewriter::data(grid);
     std::vector<float> values(512 * channels);
     for (uint64_t n = 0; n < s.node_count[0]; ++n) {
         uint8_t *leaf = buf + grid.leaf_byte(n);

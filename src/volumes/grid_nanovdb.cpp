@@ -5,25 +5,26 @@
 #include <mitsuba/render/srgb.h>
 #include <mitsuba/render/volume.h>
 
-#include <nanovdb_drjit/backend_buffer.h>
-#include <nanovdb_drjit/fast_readers.h>
-#include <nanovdb_drjit/majorant_walk.h>
-#include <nanovdb_drjit/stencil.h>
+#include <nanovdb_drjit/sampler.h>
 #include <nanovdb_loader/load.h>
 #include <nanovdb_loader/majorants.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
 
 #include "memory_source.h"
+#include "sampler_setup.h"
 
 #include <array>
-#include <atomic>
-#include <optional>
-#include <tuple>
 #include <cstdlib>
 #include <cstring>
+#include <optional>
 #include <memory>
 #include <vector>
+
+// The lookups are compiled once per backend, in sampler_*.cpp
+extern template class nanovdb_drjit::GridSampler<float>;
+extern template class nanovdb_drjit::GridSampler<drjit::DiffArray<JitBackend::LLVM, float>>;
+extern template class nanovdb_drjit::GridSampler<drjit::DiffArray<JitBackend::CUDA, float>>;
 
 NAMESPACE_BEGIN(mitsuba)
 
@@ -50,6 +51,30 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
      bytes are read. Types: float, Half, Fp4, Fp8, Fp16, FpN (one channel)
      and Vec3f (three). (Default: the first grid of one of these types)
 
+ * - grid
+   - :monosp:`VolumeGrid object`
+   - Instead of a file, as for ``gridvolume``: its values, made into a sparse
+     grid in memory (voxels equal to the background left out).
+
+ * - data
+   - |tensor|
+   - Instead of a file, as for ``gridvolume``: a tensor of shape (z, y, x)
+     or (z, y, x, channels), 1, 3 or 6 channels, made into a sparse grid.
+
+ * - values, coords
+   - |tensor|
+   - Instead of a file: voxels one by one, a TensorXf of shape (n,) or (n, 3)
+     and a TensorXi of shape (n, 3) (index coordinates x, y, z).
+
+ * - background
+   - |float|
+   - Volumes from memory: the value outside the active voxels. (Default: 0)
+
+ * - threshold
+   - |float|
+   - Volumes from memory: values within this distance of the background are
+     left out too (lossy). (Default: 0)
+
  * - filter_type
    - |string|
    - ``trilinear``: interpolate between voxel centres, as NanoVDB's own
@@ -64,6 +89,29 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
      ``to_world``. If ``true``, local space is the grid's own world space
      (its index-to-world map from the file), so the volume lines up with
      other VDB tools. (Default: ``false``)
+
+ * - wrap_mode
+   - |string|
+   - What lookups read outside the volume's box: ``tree``, the tree's own
+     values (VDB semantics); ``clamp``, the nearest edge voxel
+     (``gridvolume``'s convention). (Default: ``clamp`` for ``data`` and a
+     VolumeGrid, ``tree`` otherwise)
+
+ * - use_grid_bbox
+   - |bool|
+   - As ``gridvolume``'s: the unit cube maps to the values' world box (a
+     VolumeGrid's bbox; a file's voxels through its grid transform).
+     (Default: ``false``)
+
+ * - max_value
+   - |float|
+   - As ``gridvolume``'s: a bound given by the user; used as ``max()`` when
+     it is larger than the values' own, ignored with a warning otherwise.
+
+ * - accel
+   - |bool|
+   - Accepted for ``gridvolume`` scenes, no effect (no texture units: the
+     tree is traversed).
 
  * - raw
    - |bool|
@@ -101,11 +149,12 @@ RGB, monochrome, spectral and polarized), where it behaves like a
 single-channel ``gridvolume`` (Vec3f grids: a 3-channel one, see ``raw``).
 
 Lookups traverse the NanoVDB tree (root, upper, lower and leaf nodes) with a
-Dr.Jit translation of PNanoVDB. Values outside the active voxels are whatever
-the tree stores there -- normally the grid's background value (VDB
-semantics). Consequently, ``trilinear`` interpolation in the outer half voxel
-of the active box blends towards the background, where ``gridvolume`` clamps
-to the edge voxel.
+Dr.Jit translation of PNanoVDB (``nanovdb_drjit/sampler.h``). With
+``wrap_mode="tree"`` values outside the active voxels are whatever the tree
+stores there -- normally the grid's background value (VDB semantics), so
+``trilinear`` interpolation in the outer half voxel of the active box blends
+towards the background; with ``wrap_mode="clamp"`` lookups read the nearest
+edge voxel, as ``gridvolume`` does.
 
 Coordinates, with ``use_grid_transform=false``: if the grid's active voxels
 span the inclusive index box :math:`[m, M]` and :math:`d = M - m + 1`, the
@@ -135,9 +184,12 @@ holds their bytes. A Vec3f grid is a 3-channel volume that behaves like
 vector, ``eval()`` the colour (RGB), its luminance (monochrome) or its
 sRGB-model spectrum (spectral: each voxel's colour becomes coefficients in
 place and a scale beside the grid, one float per leaf voxel), ``eval_1()``
-the luminance, ``max_per_channel()`` each channel's ``max()``. Other grid
-types (double, int, index, points, masks) fail with a message that names the
-type and lists the supported ones.
+the luminance, ``max_per_channel()`` each channel's ``max()``. A 6-channel
+volume (the SGGX phase function's ``S``) is two Vec3f grids: from 6-channel
+``data``, or from a file's pair of grids named ``X[0:3]`` and ``X[3:6]``
+(``grid="X"``); ``eval_6()`` and ``eval_n()`` read both. Other grid types
+(double, int, index, points, masks) fail with a message that names the type
+and lists the supported ones.
 
 .. tabs::
     .. code-tab:: xml
@@ -167,19 +219,12 @@ public:
     MI_IMPORT_TYPES()
     using Walk = typename LocalMajorants<Float, Spectrum>::Walk;
     using WalkRay = typename LocalMajorants<Float, Spectrum>::WalkRay;
+    using Sampler = nanovdb_drjit::GridSampler<Float>;
     using Array3f = dr::Array<Float, 3>;
 
-    /// The grid's 32-bit words on the backend: a JIT array (LLVM: mapped host
-    /// memory; CUDA: device memory), or a plain host allocation on scalars
-    using GridBuffer = std::conditional_t<dr::is_jit_v<Float>, UInt32,
-                                          std::unique_ptr<uint32_t[], void (*)(void *)>>;
-    using Reader = nanovdb_drjit::Reader<UInt32>;
-    /// Per-value scales of a spectral Vec3f grid: a JIT array or a host vector
-    using ScalarGridScales = std::conditional_t<dr::is_jit_v<Float>, Float, std::vector<float>>;
-
-    NanoVDBVolume(const Properties &props) : Base(props), m_grid(empty_grid_buffer()) {
+    NanoVDBVolume(const Properties &props) : Base(props) {
         // Where the values come from: a file, or values in memory (built
-        // into a grid here: nanovdb_loader/build.h)
+        // into a grid here: memory_source.h, nanovdb_loader/build.h)
         const bool grid_object = props.has_property("grid") &&
                                  props.type("grid") == Properties::Type::Object;
         const int sources = int(props.has_property("filename")) + int(grid_object) +
@@ -190,8 +235,16 @@ public:
                   "(a VolumeGrid), \"data\" (a dense tensor) or \"values\" with \"coords\" "
                   "(voxels one by one); %d were given", sources);
         std::optional<MemorySource<Float, Spectrum>> memory;
+        bool vol_file = false; // a gridvolume file (.vol): dense, made sparse here
         if (props.has_property("filename")) {
             m_filename = file_resolver()->resolve(props.get<std::string_view>("filename")).string();
+            vol_file = is_vol_file(m_filename);
+            if (vol_file) {
+                if (props.has_property("grid"))
+                    Throw("nanovdbvolume: \"%s\": a .vol file holds one volume: no \"grid\" to "
+                          "choose", m_filename);
+                memory.emplace(m_filename);
+            }
         } else {
             memory.emplace(props, grid_object);
             m_filename = memory->label;
@@ -214,7 +267,7 @@ public:
         // Outside the box: the tree's own values (VDB semantics; the default
         // for files and voxel lists) or the edge voxels (gridvolume's
         // convention, and its default: the default for dense data)
-        const bool dense_source = grid_object || props.has_property("data");
+        const bool dense_source = grid_object || props.has_property("data") || vol_file;
         std::string_view wrap = props.get<std::string_view>("wrap_mode",
                                                              dense_source ? "clamp" : "tree");
         if (wrap == "clamp")
@@ -241,18 +294,14 @@ public:
             Log(Debug, "nanovdbvolume: \"%s\": accel=%s has no effect (no texture units: the "
                        "tree is traversed)", m_filename, props.get<bool>("accel"));
         m_raw = props.get<bool>("raw", false);
-        m_count = props.get<bool>("count_lookups", false);
-        if constexpr (dr::is_jit_v<Float>) {
-            if (m_count) {
-                m_counters = dr::zeros<UInt64>(kCounters);
-                dr::make_opaque(m_counters);
-            }
-        }
+        const bool count_lookups = props.get<bool>("count_lookups", false);
 
+        // The grid (a second one for 6 channels: channels 3 to 5)
         nanovdb_loader::GridSummary summary;
         std::optional<nanovdb_loader::IndexBox> box; // the volume's box, if not the active one
-        if (props.has_property("filename")) {
-            summary = load_grid(std::string(grid_object ? "" : props.get<std::string_view>("grid", "")));
+        if (!memory) {
+            std::string selector(grid_object ? "" : props.get<std::string_view>("grid", ""));
+            summary = load_file(selector);
         } else {
             nanovdb_loader::BuildOptions options;
             options.background = props.get<ScalarFloat>("background", 0.f);
@@ -263,21 +312,32 @@ public:
             if (!(options.threshold >= 0.f))
                 Throw("nanovdbvolume: \"%s\": threshold must be >= 0, got %f", m_filename,
                       options.threshold);
-            auto [built, dense_box] = memory->build(options);
-            box = dense_box;
-            if (built.left_out)
-                Log(Info, "nanovdbvolume: \"%s\": %llu voxels within threshold = %f of the "
-                          "background left out", m_filename, (unsigned long long) built.left_out,
-                    options.threshold);
-            summary = load_bytes(options.name, built.bytes, box);
+            for (int half = 0; half < (memory->six_channels ? 2 : 1); ++half) {
+                auto [built, dense_box] = memory->build(options, half);
+                box = dense_box;
+                if (built.left_out)
+                    Log(Info, "nanovdbvolume: \"%s\": %llu voxels within threshold = %f of the "
+                              "background left out", m_filename,
+                        (unsigned long long) built.left_out, options.threshold);
+                const bool six = memory->six_channels;
+                if (half == 0) {
+                    summary = load_bytes(options.name, built.bytes, box, m_sampler, m_facts, six);
+                } else {
+                    m_second = std::make_unique<Sampler>();
+                    load_bytes(options.name, built.bytes, box, *m_second, m_second_facts, six);
+                }
+            }
         }
+        m_channel_count = m_second ? 6 : m_facts.grid_type == kVec3f ? 3 : 1;
+        m_grid_name = m_facts.name;
         set_index_box(summary, box);
+        if (m_second)
+            m_second->set_box(m_index_min_box, m_resolution_box, kVec3f, m_clamp);
         if (use_grid_bbox)
             place_by_grid_bbox(summary, memory ? memory->bbox_transform : std::nullopt);
         if (m_use_grid_transform)
             set_grid_transform(summary);
-        set_cell_transform(summary);
-        m_channel_count = m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F ? 3 : 1;
+        set_cell_transform();
 
         // gridvolume's max_value: a bound given by the user. A larger one
         // than the values' own is kept (a looser majorant: slower, still
@@ -285,25 +345,27 @@ public:
         // with a warning, and the values' own is kept.
         if (props.has_property("max_value")) {
             ScalarFloat given = props.get<ScalarFloat>("max_value");
-            if (given >= m_max_host) {
-                m_max_host = given;
-                m_max = dr::opaque<Float>(m_max_host);
-                m_max3_host = dr::maximum(m_max3_host, ScalarVector3f(given));
+            if (given >= max()) {
+                m_facts.max = given;
                 for (int k = 0; k < 3; ++k)
-                    m_max3[k] = dr::opaque<Float>(m_max3_host[k]);
+                    m_facts.max3[k] = std::max(m_facts.max3[k], given);
+                m_sampler.set_bounds(m_facts.max, m_facts.max3);
             } else {
                 Log(Warn, "nanovdbvolume: \"%s\": max_value = %f is below the largest value "
                           "lookups return (%f): a majorant that small would bias renders, "
-                          "so max() stays %f", m_filename, given, m_max_host, m_max_host);
+                          "so max() stays %f", m_filename, given, max(), max());
             }
         }
+        if (count_lookups)
+            m_sampler.enable_counters();
         Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
             m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
-            m_grid_bytes, m_max_host);
+            m_facts.grid_bytes, max());
     }
 
     // =====================================================================
-    //  Volume interface
+    //  Volume interface: positions to index space (index_position()), then
+    //  the sampler (nanovdb_drjit/sampler.h)
     // =====================================================================
 
     // Vec3f grids behave like a 3-channel gridvolume: eval() is the colour
@@ -313,6 +375,8 @@ public:
 
     UnpolarizedSpectrum eval(const Interaction3f &it, Mask active) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
+        if (m_channel_count == 6)
+            Throw("eval(): the nanovdbvolume \"%s\" has 6 channels: use eval_6()", m_filename);
         if (m_channel_count == 3 && is_spectral_v<Spectrum> && m_raw)
             Throw("eval(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for a "
                   "spectrum, but its conversion into spectra was disabled (raw=true)",
@@ -322,15 +386,17 @@ public:
         if (m_channel_count == 1)
             return UnpolarizedSpectrum(lookup(it, active));
         if constexpr (is_monochromatic_v<Spectrum>)
-            return UnpolarizedSpectrum(luminance(Color3f(lookup3(it, active))));
+            return UnpolarizedSpectrum(luminance(Color3f(lookup3(m_sampler, it, active))));
         else if constexpr (is_spectral_v<Spectrum>)
             return lookup_spectral(it, active);
         else
-            return UnpolarizedSpectrum(lookup3(it, active));
+            return UnpolarizedSpectrum(lookup3(m_sampler, it, active));
     }
 
     Float eval_1(const Interaction3f &it, Mask active = true) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
+        if (m_channel_count == 6)
+            Throw("eval_1(): the nanovdbvolume \"%s\" has 6 channels: use eval_6()", m_filename);
         if (m_channel_count == 3 && is_spectral_v<Spectrum> && !m_raw)
             Throw("eval_1(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for "
                   "a scalar value, but its conversion into spectra was requested (raw=false)",
@@ -338,96 +404,177 @@ public:
         if (dr::none_or<false>(active))
             return dr::zeros<Float>();
         if (m_channel_count == 3)
-            return luminance(Color3f(lookup3(it, active)));
+            return luminance(Color3f(lookup3(m_sampler, it, active)));
         return lookup(it, active);
     }
 
     void eval_n(const Interaction3f &it, Float *out, Mask active = true) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
-        if (m_channel_count == 3) {
-            Vector3f v = lookup3(it, active);
-            for (int k = 0; k < 3; ++k)
-                out[k] = v[k];
+        if (m_channel_count == 1) {
+            out[0] = lookup(it, active);
             return;
         }
-        out[0] = lookup(it, active);
+        Vector3f v = lookup3(m_sampler, it, active);
+        for (int k = 0; k < 3; ++k)
+            out[k] = v[k];
+        if (m_second) {
+            Vector3f w = lookup3(*m_second, it, active);
+            for (int k = 0; k < 3; ++k)
+                out[3 + k] = w[k];
+        }
     }
 
     Vector3f eval_3(const Interaction3f &it, Mask active = true) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
         if (m_channel_count != 3)
-            Throw("eval_3(): the nanovdbvolume \"%s\" (grid \"%s\") holds a single "
-                  "channel, not a 3D vector", m_filename, m_grid_name);
+            Throw("eval_3(): the nanovdbvolume \"%s\" (grid \"%s\") holds %s, not a 3D vector",
+                  m_filename, m_grid_name, channels_str());
         if (is_spectral_v<Spectrum> && !m_raw)
             Throw("eval_3(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for "
                   "a 3D vector, but its conversion into spectra was requested (raw=false)",
                   m_filename, m_grid_name);
         if (dr::none_or<false>(active))
             return dr::zeros<Vector3f>();
-        return lookup3(it, active);
+        return lookup3(m_sampler, it, active);
     }
 
-    dr::Array<Float, 6> eval_6(const Interaction3f &, Mask = true) const override {
-        Throw("eval_6(): the nanovdbvolume \"%s\" (grid \"%s\") holds a single "
-              "channel, not 6", m_filename, m_grid_name);
+    /// 6 channels: the two Vec3f grids, channels 0-2 and 3-5
+    dr::Array<Float, 6> eval_6(const Interaction3f &it, Mask active = true) const override {
+        MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
+        if (!m_second)
+            Throw("eval_6(): the nanovdbvolume \"%s\" (grid \"%s\") holds %s, not 6",
+                  m_filename, m_grid_name, channels_str());
+        dr::Array<Float, 6> out;
+        if (dr::none_or<false>(active))
+            return dr::zeros<dr::Array<Float, 6>>();
+        Vector3f a = lookup3(m_sampler, it, active), b = lookup3(*m_second, it, active);
+        for (int k = 0; k < 3; ++k) {
+            out[k] = a[k];
+            out[3 + k] = b[k];
+        }
+        return out;
     }
 
-    ScalarFloat max() const override { return m_max_host; }
+    ScalarFloat max() const override {
+        return m_second ? std::max(m_facts.max, m_second_facts.max) : m_facts.max;
+    }
 
     void max_per_channel(ScalarFloat *out) const override {
-        if (m_channel_count == 3) {
-            for (int k = 0; k < 3; ++k)
-                out[k] = m_max3_host[k];
+        if (m_channel_count == 1) {
+            out[0] = m_facts.max;
             return;
         }
-        out[0] = m_max_host;
+        for (int k = 0; k < 3; ++k) {
+            out[k] = m_facts.max3[k];
+            if (m_second)
+                out[3 + k] = m_second_facts.max3[k];
+        }
     }
 
     ScalarVector3i resolution() const override { return m_resolution_host; }
+
+    /**
+     * What the grid is, as non-differentiable parameters (Mitsuba's Python
+     * side reads numbers, not strings: the grid type and class are NanoVDB's
+     * codes; nanovdb_mitsuba.volume_facts() names them)
+     */
+    void traverse(TraversalCallback *cb) override {
+        Base::traverse(cb);
+        m_trav.grid_type = m_facts.grid_type;
+        m_trav.grid_class = m_facts.grid_class;
+        m_trav.channels = m_channel_count;
+        m_trav.bbox_min = m_bbox.min;
+        m_trav.bbox_max = m_bbox.max;
+        m_trav.max = max();
+        m_trav.grid_bytes = double(m_facts.grid_bytes + m_second_facts.grid_bytes);
+        m_trav.backend_bytes = double(backend_bytes());
+        m_trav.majorant_bytes = double(m_facts.majorant_bytes + m_second_facts.majorant_bytes);
+        m_trav.scale_bytes = double(m_facts.scale_bytes);
+        auto put = [&](const char *name, auto &value) {
+            cb->put(name, value, ParamFlags::NonDifferentiable);
+        };
+        put("grid_index", m_grid_index);
+        put("grid_type", m_trav.grid_type);
+        put("grid_class", m_trav.grid_class);
+        put("channels", m_trav.channels);
+        put("index_min", m_index_min_host);
+        put("index_dims", m_resolution_host);
+        put("world_bbox_min", m_trav.bbox_min);
+        put("world_bbox_max", m_trav.bbox_max);
+        put("max", m_trav.max);
+        put("grid_max", m_facts.grid_max);
+        put("background", m_background_host);
+        put("local_majorant_ratio", m_facts.majorant_ratio);
+        put("grid_bytes", m_trav.grid_bytes);
+        put("backend_bytes", m_trav.backend_bytes);
+        put("majorant_bytes", m_trav.majorant_bytes);
+        put("spectral_scale_bytes", m_trav.scale_bytes);
+        put("wrap_clamp", m_clamp);
+        if (m_sampler.counting()) {
+            std::vector<uint64_t> counts = m_sampler.counter_values();
+            for (size_t i = 0; i < counts.size(); ++i) {
+                m_trav.counters[i] = (double) counts[i];
+                put(nanovdb_drjit::COUNTER_NAMES[i], m_trav.counters[i]);
+            }
+        }
+    }
 
     std::string to_string() const override {
         std::ostringstream oss;
         oss << "NanoVDBVolume[" << std::endl
             << "  filename = \"" << m_filename << "\"," << std::endl
             << "  grid = \"" << m_grid_name << "\"," << std::endl
-            << "  grid_type = " << nanovdb_loader::grid_type_name(m_grid_type) << "," << std::endl
-            << "  grid_class = " << nanovdb_loader::grid_class_name(m_grid_class) << "," << std::endl
+            << "  grid_type = " << nanovdb_loader::grid_type_name(m_facts.grid_type) << ","
+            << std::endl
+            << "  grid_class = " << nanovdb_loader::grid_class_name(m_facts.grid_class) << ","
+            << std::endl
+            << "  channels = " << m_channel_count << "," << std::endl
             << "  filter_type = " << (m_nearest ? "nearest" : "trilinear") << "," << std::endl
+            << "  wrap_mode = " << (m_clamp ? "clamp" : "tree") << "," << std::endl
             << "  use_grid_transform = " << m_use_grid_transform << "," << std::endl
             << "  to_local = " << string::indent(m_to_local, 13) << "," << std::endl
             << "  bbox = " << string::indent(m_bbox) << "," << std::endl
             << "  index_min = " << m_index_min_host << "," << std::endl
             << "  dimensions = " << m_resolution_host << "," << std::endl
             << "  background = " << m_background_host << "," << std::endl
-            << "  max = " << m_max_host << "," << std::endl
-            << "  grid_max = " << m_grid_max_host << "," << std::endl
-            << "  bytes = " << m_grid_bytes << "," << std::endl
-            << "  backend_bytes = " << m_backend_bytes << "," << std::endl
-            << "  majorant_bytes = " << m_majorant_bytes << "," << std::endl
-            << (m_scale_bytes ? "  spectral_scale_bytes = " + std::to_string(m_scale_bytes) + ",\n"
-                              : std::string())
-            << "  local_majorant_ratio = " << m_majorant_ratio << "," << std::endl
-            << counters_string()
-            << "  reader = " << (m_reader.root_indexed ? "root index" : "root search")
-            << (m_reader.compact_offsets ? ", 32-bit child offsets" : ", 64-bit child offsets")
+            << "  max = " << max() << "," << std::endl
+            << "  grid_max = " << m_facts.grid_max << "," << std::endl
+            << "  bytes = " << m_facts.grid_bytes + m_second_facts.grid_bytes << "," << std::endl
+            << "  backend_bytes = " << backend_bytes() << "," << std::endl
+            << "  majorant_bytes = " << m_facts.majorant_bytes << "," << std::endl
+            << (m_facts.scale_bytes
+                    ? "  spectral_scale_bytes = " + std::to_string(m_facts.scale_bytes) + ",\n"
+                    : std::string())
+            << "  local_majorant_ratio = " << m_facts.majorant_ratio << "," << std::endl;
+        if (m_sampler.counting()) {
+            std::vector<uint64_t> counts = m_sampler.counter_values();
+            for (size_t i = 0; i < counts.size(); ++i)
+                oss << "  " << nanovdb_drjit::COUNTER_NAMES[i] << " = " << counts[i] << ","
+                    << std::endl;
+        }
+        oss << "  reader = " << (m_sampler.reader.root_indexed ? "root index" : "root search")
+            << (m_sampler.reader.compact_offsets ? ", 32-bit child offsets"
+                                                 : ", 64-bit child offsets")
             << std::endl
             << "]";
         return oss.str();
     }
 
     // =====================================================================
-    //  Local majorants (nanovdb_mitsuba/local_majorants.h): the walk of
-    //  nanovdb_drjit/majorant_walk.h in "cell space" (voxel ijk covers
-    //  [ijk, ijk + 1)^3, relative to a multiple of 4096 near the box)
+    //  Local majorants (nanovdb_mitsuba/local_majorants.h): the sampler's
+    //  walk in "cell space" (voxel ijk covers [ijk, ijk + 1)^3, relative to
+    //  a multiple of 4096 near the box)
     // =====================================================================
 
     // No MI_MASK_ARGUMENT here: on scalar variants it would make every call
     // active, and the walk is stepped with masks (a lane that met a null
     // collision stays in its segment).
 
-    ScalarFloat local_majorant_ratio() const override { return m_majorant_ratio; }
+    ScalarFloat local_majorant_ratio() const override {
+        return m_channel_count == 6 ? 1.f : m_facts.majorant_ratio;
+    }
 
-    ScalarFloat majorant_bound() const override { return m_max_host; }
+    ScalarFloat majorant_bound() const override { return max(); }
 
     WalkRay walk_ray(const Ray3f &ray, const Float &thin_depth, Mask /* active */) const override {
         WalkRay r;
@@ -446,184 +593,87 @@ public:
 
     Walk walk_begin(const WalkRay &r, const Float &tmin, const Float &tmax,
                     Mask active) const override {
-        Walk walk = with_walk_type([&](auto type) {
-            return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-                return nanovdb_drjit::walk_begin<decltype(type)::value>(
-                    buf, root, m_majorants, Array3f(r.origin), Array3f(r.direction), tmin,
-                    tmax, r.coarse_limit, active);
-            });
-        });
-        count(7, active);
-        count_step(walk, active && nanovdb_drjit::walk_valid(walk));
-        return walk;
+        return m_sampler.walk_begin(Array3f(r.origin), Array3f(r.direction), tmin, tmax,
+                                    r.coarse_limit, active);
     }
 
     Mask walk_advance(Walk &walk, const WalkRay &r, Mask active) const override {
-        Mask more = with_walk_type([&](auto type) {
-            return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-                return nanovdb_drjit::walk_advance<decltype(type)::value>(
-                    buf, root, m_majorants, walk, Array3f(r.origin), Array3f(r.direction),
-                    r.coarse_limit, active);
-            });
-        });
-        count_step(walk, more);
-        return more;
+        return m_sampler.walk_advance(walk, Array3f(r.origin), Array3f(r.direction),
+                                      r.coarse_limit, active);
     }
 
     MI_DECLARE_CLASS(NanoVDBVolume)
 
 private:
+    static constexpr uint32_t kVec3f = nanovdb_drjit::layout::GRID_TYPE_VEC3F;
+
+    /// Whether `path` starts as a gridvolume file does ("VOL", version 3)
+    static bool is_vol_file(const std::string &path) {
+        FILE *f = std::fopen(path.c_str(), "rb");
+        if (!f)
+            return false; // (the loader reports a missing file)
+        unsigned char magic[4] = { 0, 0, 0, 0 };
+        size_t n = std::fread(magic, 1, 4, f);
+        std::fclose(f);
+        return n == 4 && magic[0] == 'V' && magic[1] == 'O' && magic[2] == 'L' && magic[3] == 3;
+    }
+
+    std::string channels_str() const {
+        return m_channel_count == 1 ? "a single channel"
+                                    : std::to_string(m_channel_count) + " channels";
+    }
+
     // =====================================================================
-    //  Lookups, by space. Local: the unit cube over the active box (default)
-    //  or the grid's world space (use_grid_transform). Index: NanoVDB's
-    //  integer voxel coordinates, values at integer positions. Kernels
-    //  compute the index position *relative to the box minimum* in floating
-    //  point and add the integer minimum last, so grids far from the origin
-    //  keep full precision.
+    //  Positions: local (or, with use_grid_transform, world) -> index space.
+    //  The index position is computed relative to the box minimum in
+    //  floating point and the integer minimum added last (by the sampler),
+    //  so grids far from the origin keep full precision.
     // =====================================================================
 
-    /// Value at the local point of `it`: local -> index, then the filter.
-    /// Inside the volume's box every value is at most max(); points outside
-    /// it (use_grid_transform with a rotation, a shape larger than the
-    /// volume) may reach other values of the tree, which are clamped to
-    /// max(), so that max() bounds every lookup, as a majorant must.
-    Float lookup(const Interaction3f &it, Mask active) const {
-        MI_MASK_ARGUMENT(active);
-        count(0, active);
-        Vector3f rel; // index position relative to m_index_min
+    /// The voxel a nearest lookup reads (relative to the box minimum), or
+    /// the index position a trilinear one interpolates at
+    struct IndexPosition {
+        Vector3i voxel;
+        Vector3f rel;
+    };
+
+    IndexPosition index_position(const Interaction3f &it) const {
+        IndexPosition out;
         if (!m_use_grid_transform) {
             Point3f p = m_to_local * it.p;
             // Same arithmetic as Dr.Jit's texture (gridvolume), so both plugins
-            // pick the same voxels and weights.
+            // pick the same voxels and weights
             if (m_nearest)
-                return value_at(index_add(clamp_voxel(index_floor(p * m_resolution)), m_index_min),
-                                active);
-            rel = dr::fmadd(p, m_resolution, -.5f);
+                out.voxel = nanovdb_drjit::index_floor(Array3f(p * m_resolution));
+            else
+                out.rel = dr::fmadd(p, m_resolution, -.5f);
         } else {
             Point4f p = m_index_from_world * Point4f(it.p.x(), it.p.y(), it.p.z(), 1.f);
-            rel = Vector3f(p.x(), p.y(), p.z());
+            out.rel = Vector3f(p.x(), p.y(), p.z());
             if (m_nearest)
-                return value_at(index_add(clamp_voxel(index_floor(rel + .5f)), m_index_min),
-                                active);
+                out.voxel = nanovdb_drjit::index_floor(Array3f(out.rel + .5f));
         }
-        return trilinear_at(clamp_position(rel), active);
-    }
-
-    /// count_lookups: adds the active lanes to counter `which` (see
-    /// kCounterNames). A benchmarking aid: an atomic add per call.
-    void count(int which, const Mask &active) const {
-        if (!m_count)
-            return;
-        if constexpr (dr::is_jit_v<Float>)
-            dr::scatter_reduce(ReduceOp::Add, m_counters, UInt64(1), UInt32(which), active);
-        else if (active)
-            m_scalar_counters[which].fetch_add(1, std::memory_order_relaxed);
-    }
-
-    /// A cell the walk entered: counted, by its bound (zero or not) and size
-    void count_step(const Walk &walk, const Mask &active) const {
-        if (!m_count)
-            return;
-        count(1, active);
-        count(2, active && walk.majorant == 0.f);
-        const int32_t dims[4] = { 8, 32, 128, 4096 };
-        for (int i = 0; i < 4; ++i)
-            count(3 + i, active && walk.hdda.dim == dims[i]);
-    }
-
-    static constexpr int kCounters = 8;
-    static constexpr const char *kCounterNames[kCounters] = {
-        "lookup_count", "walk_step_count", "walk_empty_step_count", "walk_step_8_count",
-        "walk_step_32_count", "walk_step_128_count", "walk_step_4096_count", "walk_count"
-    };
-
-    std::string counters_string() const {
-        if (!m_count)
-            return "";
-        uint64_t c[kCounters];
-        if constexpr (dr::is_jit_v<Float>) {
-            dr::eval(m_counters);
-            dr::store(c, m_counters);
-        } else {
-            for (int i = 0; i < kCounters; ++i)
-                c[i] = m_scalar_counters[i].load();
-        }
-        std::string out;
-        for (int i = 0; i < kCounters; ++i)
-            out += std::string("  ") + kCounterNames[i] + " = " + std::to_string(c[i]) + ",\n";
         return out;
     }
 
-    /// Value stored at integer index coordinate `ijk` (PNanoVDB traversal),
-    /// clamped to max()
-    Float value_at(const Vector3i &ijk, Mask active) const {
-        namespace ndr = nanovdb_drjit;
-        ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
-        return dr::minimum(m_max, with_type([&](auto type) {
-            return m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-                return ndr::root_get_value<decltype(type)::value>(buf, root, c, active);
-            });
-        }));
-    }
-
-    /// Trilinear interpolation at index position m_index_min + rel: the 8
-    /// corners in one traversal (root_get_stencil_addresses), summed in the
-    /// order and with the weights of Dr.Jit's texture
-    Float trilinear_at(const Vector3f &rel, Mask active) const {
-        namespace ndr = nanovdb_drjit;
-        Vector3i base = index_floor(rel);
-        Vector3f w1 = rel - Vector3f(base),
-                 w0 = 1.f - w1;
-        Vector3i ijk0 = index_add(base, m_index_min);
-        ndr::Coord<UInt32> c(ijk0.x(), ijk0.y(), ijk0.z());
-        Float result = with_type([&](auto type) {
-            constexpr uint32_t T = decltype(type)::value;
-            // Levels: only the quantized and half readers need them
-            constexpr bool with_level = ndr::grid_type_traits<T>::type.codec !=
-                                        ndr::layout::LeafCodec::Float32;
-            ndr::StencilAddresses<UInt32> corners =
-                m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-                    return ndr::root_get_stencil<T, with_level>(buf, root, c, active);
-                });
-            Float sum = 0.f;
-            for (uint32_t corner = 0; corner < 8; ++corner) {
-                Float weight = 1.f;
-                for (uint32_t k = 0; k < 3; ++k)
-                    weight = weight * (((corner >> k) & 1) ? w1[k] : w0[k]);
-                ndr::Coord<UInt32> ijk = ndr::coord_add<UInt32>(c, corner & 1u, (corner >> 1) & 1u,
-                                                                (corner >> 2) & 1u);
-                Float value = ndr::root_read_float<T>(grid_words(), corners.address[corner],
-                                                      corners.level[corner], ijk, active);
-                sum = dr::fmadd(value, weight, sum);
-            }
-            return sum;
-        });
-        // The rounded weights can sum to slightly more than 1, so the result
-        // could exceed the largest corner by a few ulps (measured: 3 ulps on
-        // a level set whose values sit at its maximum); and corners outside
-        // the volume's box may hold more than max(). The heterogeneous
-        // medium needs max() to be a true bound, so clamp.
-        return dr::minimum(result, m_max);
-    }
-
-    // ---- Vec3f -------------------------------------------------------------
-
-    /// lookup() for Vec3f grids: the 3-vector, each channel clamped to its max
-    Vector3f lookup3(const Interaction3f &it, Mask active) const {
+    /// Value at the local point of `it` (scalar grids). Inside the volume's
+    /// box every value is at most max(); points outside it (use_grid_transform
+    /// with a rotation, a shape larger than the volume) may reach other
+    /// values of the tree, which the sampler clamps to max(), so that max()
+    /// bounds every lookup, as a majorant must.
+    Float lookup(const Interaction3f &it, Mask active) const {
         MI_MASK_ARGUMENT(active);
-        count(0, active);
-        auto [nearest, ijk, rel] = index_position(it);
-        Vector3f v;
-        if (nearest) {
-            auto [address, level] = vec3_address(ijk, active);
-            v = nanovdb_drjit::root_read_vec3f<kVec3f>(grid_words(), address, active);
-        } else {
-            v = trilinear_sum(rel, active, [&](const UInt32 &address, const UInt32 &,
-                                               const nanovdb_drjit::Coord<UInt32> &) {
-                return nanovdb_drjit::root_read_vec3f<kVec3f>(grid_words(), address, active);
-            });
-        }
-        return dr::minimum(v, m_max3);
+        IndexPosition pos = index_position(it);
+        return m_nearest ? m_sampler.nearest(pos.voxel, active)
+                         : m_sampler.trilinear(Array3f(pos.rel), active);
+    }
+
+    /// The 3-vector at the local point of `it` (a Vec3f grid)
+    Vector3f lookup3(const Sampler &s, const Interaction3f &it, Mask active) const {
+        MI_MASK_ARGUMENT(active);
+        IndexPosition pos = index_position(it);
+        return Vector3f(m_nearest ? s.nearest3(pos.voxel, active)
+                                  : s.trilinear3(Array3f(pos.rel), active));
     }
 
     /// eval() of a Vec3f grid in spectral variants, as gridvolume's
@@ -631,388 +681,217 @@ private:
     /// coefficients, interpolated, times the interpolated scale
     UnpolarizedSpectrum lookup_spectral(const Interaction3f &it, Mask active) const {
         namespace ndr = nanovdb_drjit;
-        count(0, active);
-        auto [nearest, ijk, rel] = index_position(it);
+        m_sampler.count(ndr::Counter::Lookup, active);
+        IndexPosition pos = index_position(it);
         auto corner_value = [&](const UInt32 &address, const UInt32 &level,
                                 const ndr::Coord<UInt32> &c) {
-            Vector3f coeff = ndr::root_read_vec3f<kVec3f>(grid_words(), address, active);
-            Float scale = value_scale(address, level, c, active);
-            return std::make_pair(
-                srgb_model_eval<UnpolarizedSpectrum>(coeff, it.wavelengths), scale);
+            Vector3f coeff(m_sampler.read3(address, active));
+            return std::make_pair(srgb_model_eval<UnpolarizedSpectrum>(coeff, it.wavelengths),
+                                  m_sampler.value_scale(address, level, c, active));
         };
-        if (nearest) {
-            auto [address, level] = vec3_address(ijk, active);
-            ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
-            auto [spectrum, scale] = corner_value(address, level, c);
+        if (m_nearest) {
+            ndr::AddressAndLevel<UInt32> al = m_sampler.address3(pos.voxel, active);
+            auto [spectrum, scale] = corner_value(al.address, al.level,
+                                                  m_sampler.absolute(pos.voxel));
             return spectrum * scale;
         }
-        UnpolarizedSpectrum spectrum = trilinear_sum(rel, active, [&](const UInt32 &a, const UInt32 &l,
-                                                                     const ndr::Coord<UInt32> &c) {
-            return corner_value(a, l, c).first;
-        });
-        Float scale = trilinear_sum(rel, active, [&](const UInt32 &a, const UInt32 &l,
-                                                    const ndr::Coord<UInt32> &c) {
-            return value_scale(a, l, c, active);
-        });
-        return spectrum * dr::minimum(scale, m_max);
-    }
-
-    /// The scale of a spectral Vec3f value, found from its address and level
-    /// (see to_spectral_coefficients)
-    Float value_scale(const UInt32 &address, const UInt32 &level,
-                      const nanovdb_drjit::Coord<UInt32> &ijk, const Mask &active) const {
-        namespace ndr = nanovdb_drjit;
-        constexpr const auto &c = ndr::grid_type_traits<kVec3f>::constants;
-        Mask leaf = active & (level == ndr::LEVEL_LEAF),
-             entry = active & ((level == ndr::LEVEL_LOWER) | (level == ndr::LEVEL_UPPER)),
-             tile = active & (level == ndr::LEVEL_ROOT_TILE),
-             background = active & (level == ndr::LEVEL_BACKGROUND);
-        UInt32 n = ndr::leaf_coord_to_offset(ijk);
-        const dr::divisor<uint32_t> leaf_words(c.leaf_size / 4);
-        UInt32 leaf_word = address - (c.leaf_off_table / 4) - 3u * n;
-        UInt32 index = leaf_words(UInt32(leaf_word - m_leaf_begin_word)) * 512u + n;
-        index = dr::select(tile, m_scale_tiles + ((address - m_tile_begin_word -
-                                                   c.root_tile_off_value / 4) >> 3), index);
-        index = dr::select(background, m_scale_background, index);
-        Float from_array;
-        if constexpr (dr::is_jit_v<Float>)
-            from_array = dr::gather<Float>(m_scales, index, leaf | tile | background);
-        else
-            from_array = (leaf | tile | background) ? m_scales[index] : 0.f;
-        // Internal tiles keep their scale in the entry's fourth word
-        Float from_entry = ndr::read_float(grid_words(), UInt32(address + 3u), entry);
-        return dr::select(entry, from_entry, from_array);
-    }
-
-    /// Value address and level of voxel ijk in a Vec3f grid
-    std::pair<UInt32, UInt32> vec3_address(const Vector3i &ijk, const Mask &active) const {
-        namespace ndr = nanovdb_drjit;
-        ndr::Coord<UInt32> c(ijk.x(), ijk.y(), ijk.z());
-        ndr::AddressAndLevel<UInt32> al =
-            m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-                return ndr::root_get_value_address_and_level<kVec3f>(buf, root, c, active);
-            });
-        return { al.address, al.level };
-    }
-
-    /// Trilinear interpolation of read(address, level, ijk) over the 8
-    /// corners, weights and order as trilinear_at()
-    template <typename Read>
-    auto trilinear_sum(const Vector3f &rel, const Mask &active, const Read &read) const {
-        namespace ndr = nanovdb_drjit;
-        Vector3i base = index_floor(rel);
-        Vector3f w1 = rel - Vector3f(base), w0 = 1.f - w1;
-        Vector3i ijk0 = index_add(base, m_index_min);
-        ndr::Coord<UInt32> c(ijk0.x(), ijk0.y(), ijk0.z());
-        ndr::StencilAddresses<UInt32> corners =
-            m_reader.apply(grid_words(), [&](const auto &buf, const auto &root) {
-                return ndr::root_get_stencil<kVec3f, true>(buf, root, c, active);
-            });
-        decltype(read(UInt32(), UInt32(), c)) sum(0.f);
+        typename Sampler::Stencil s = m_sampler.stencil3(Array3f(pos.rel), active);
+        UnpolarizedSpectrum spectrum(0.f);
+        Float scale = 0.f;
         for (uint32_t corner = 0; corner < 8; ++corner) {
-            Float weight = 1.f;
-            for (uint32_t k = 0; k < 3; ++k)
-                weight = weight * (((corner >> k) & 1) ? w1[k] : w0[k]);
-            ndr::Coord<UInt32> ijk =
-                ndr::coord_add<UInt32>(c, corner & 1u, (corner >> 1) & 1u, (corner >> 2) & 1u);
-            sum = dr::fmadd(read(corners.address[corner], corners.level[corner], ijk), weight, sum);
+            ndr::Coord<UInt32> c = ndr::coord_add<UInt32>(s.ijk0, corner & 1u,
+                                                          (corner >> 1) & 1u, (corner >> 2) & 1u);
+            auto [sp, sc] = corner_value(s.corners.address[corner], s.corners.level[corner], c);
+            spectrum = dr::fmadd(sp, s.weight[corner], spectrum);
+            scale = dr::fmadd(sc, s.weight[corner], scale);
         }
-        return sum;
-    }
-
-    /// Where a lookup reads: (true, voxel) for nearest, (false, -, index
-    /// position relative to the box minimum) for trilinear (see lookup())
-    std::tuple<bool, Vector3i, Vector3f> index_position(const Interaction3f &it) const {
-        if (!m_use_grid_transform) {
-            Point3f p = m_to_local * it.p;
-            if (m_nearest)
-                return { true, index_add(clamp_voxel(index_floor(p * m_resolution)), m_index_min),
-                         Vector3f() };
-            return { false, Vector3i(), clamp_position(dr::fmadd(p, m_resolution, -.5f)) };
-        }
-        Point4f p = m_index_from_world * Point4f(it.p.x(), it.p.y(), it.p.z(), 1.f);
-        Vector3f rel(p.x(), p.y(), p.z());
-        if (m_nearest)
-            return { true, index_add(clamp_voxel(index_floor(rel + .5f)), m_index_min),
-                     Vector3f() };
-        return { false, Vector3i(), clamp_position(rel) };
-    }
-
-    /// wrap_mode "clamp" (gridvolume's convention): a voxel (relative to the
-    /// box minimum) outside the box is its nearest edge voxel ...
-    Vector3i clamp_voxel(const Vector3i &v) const {
-        return m_clamp ? dr::clip(v, 0, m_last_voxel) : v;
-    }
-
-    /// ... and a trilinear position is kept between the edge voxels' centres:
-    /// the same value as clamping each corner of the stencil, as Dr.Jit's
-    /// texture does (up to the rounding of weights that sum to 1)
-    Vector3f clamp_position(const Vector3f &rel) const {
-        return m_clamp ? dr::clip(rel, 0.f, Vector3f(m_last_voxel)) : rel;
-    }
-
-    static constexpr uint32_t kVec3f = nanovdb_drjit::layout::GRID_TYPE_VEC3F;
-
-    /// floor() to int32 for positions relative to the box minimum. Points
-    /// absurdly far outside the volume are clamped first (a float beyond the
-    /// int32 range has no int32 floor); they read the background either way.
-    static Vector3i index_floor(const Vector3f &rel) {
-        constexpr float limit = 2147483520.f; // largest float below 2^31
-        return dr::floor2int<Vector3i>(dr::clip(rel, -limit, limit));
-    }
-
-    /// a + b with int32 wrap-around on every backend (the VDB index space
-    /// wraps as PNanoVDB's does; plain C++ int32 overflow is undefined)
-    static Vector3i index_add(const Vector3i &a, const Vector3i &b) {
-        return dr::reinterpret_array<Vector3i>(dr::reinterpret_array<Vector3u>(a) +
-                                               dr::reinterpret_array<Vector3u>(b));
-    }
-
-    /// Calls fn(std::integral_constant<uint32_t, grid type>) for the grid's
-    /// scalar value type (layout.h's visit_value_type): every type is
-    /// compiled, one is traced. Vec3f has its own lookups (lookup3).
-    template <typename Fn> decltype(auto) with_type(Fn &&fn) const {
-        return nanovdb_drjit::layout::visit_value_type<false>(m_grid_type, std::forward<Fn>(fn));
-    }
-
-    /// with_type() for the majorant walk, which reads every type's tiles
-    template <typename Fn> decltype(auto) with_walk_type(Fn &&fn) const {
-        return nanovdb_drjit::layout::visit_value_type(m_grid_type, std::forward<Fn>(fn));
-    }
-
-    /// The grid as the translation reads it: a JIT array or a host pointer
-    decltype(auto) grid_words() const {
-        if constexpr (dr::is_jit_v<Float>)
-            return (const UInt32 &) m_grid;
-        else
-            return static_cast<const uint32_t *>(m_grid.get());
+        return spectrum * dr::minimum(scale, m_facts.max);
     }
 
     // =====================================================================
-    //  Loading: only the selected grid's bytes, decoded once (the loader's
-    //  decode_grid: read -> validate -> value policy -> reader plan) into
-    //  one exact-size allocation that the backend owns
-    //  (include/nanovdb_drjit/backend_buffer.h). No host copy is kept, and
-    //  none is made on LLVM.
+    //  Loading: only the selected grid's bytes, decoded once (the loader)
+    //  into one exact-size allocation that the backend owns (the sampler).
+    //  No host copy is kept, and none is made on LLVM.
     // =====================================================================
 
-    static GridBuffer empty_grid_buffer() {
-        if constexpr (dr::is_jit_v<Float>)
-            return UInt32();
-        else
-            return GridBuffer(nullptr, std::free);
+    /// What the plugin reports of a loaded grid
+    struct GridFacts {
+        std::string name;
+        uint32_t grid_type = 0, grid_class = 0;
+        float max = 0.f, grid_max = 0.f;   ///< lookups' bound; the largest stored value
+        float max3[3] = { 0.f, 0.f, 0.f }; ///< per channel (Vec3f)
+        size_t grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0;
+        ScalarFloat majorant_ratio = 1.f;  ///< mean local bound / max()
+    };
+
+    /// The backend's bytes of the grid(s) and what lives beside them
+    size_t backend_bytes() const {
+        return m_facts.backend_bytes + m_second_facts.backend_bytes;
     }
 
-    /// Selects, decodes and hands the file's grid to the backend (adopt())
-    nanovdb_loader::GridSummary load_grid(const std::string &selector) {
+    /// The file's grid `selector` (or, where a grid X is asked for and the
+    /// file holds "X[0:3]" and "X[3:6]", that pair: 6 channels)
+    nanovdb_loader::GridSummary load_file(const std::string &selector) {
         namespace loader = nanovdb_loader;
         try {
             std::vector<loader::GridEntry> grids = loader::list_grids(m_filename);
-            const loader::GridEntry &entry = loader::select_grid(m_filename, grids, selector);
-            m_grid_name = entry.name;
-            m_grid_type = entry.grid_type;
-            m_grid_class = entry.grid_class;
-            HostBlock host = allocate(entry.grid_size);
-            loader::DecodedGrid decoded = loader::decode_grid(
-                m_filename, entry, host.get(), m_backend_bytes, m_invalid_values);
-            return adopt(std::move(host), decoded, std::nullopt);
+            auto named = [&](const std::string &name) -> const loader::GridEntry * {
+                for (const loader::GridEntry &e : grids)
+                    if (e.name == name)
+                        return &e;
+                return nullptr;
+            };
+            const loader::GridEntry *first = nullptr, *second = nullptr;
+            std::string base = selector;
+            if (selector.empty() && !grids.empty()) {
+                const loader::GridEntry &chosen = loader::select_grid(m_filename, grids, "");
+                if (chosen.name.size() > 5 &&
+                    chosen.name.compare(chosen.name.size() - 5, 5, "[0:3]") == 0)
+                    base = chosen.name.substr(0, chosen.name.size() - 5);
+            }
+            if (!base.empty() && !named(base) && named(base + "[0:3]") && named(base + "[3:6]")) {
+                first = named(base + "[0:3]");
+                second = named(base + "[3:6]");
+                for (const loader::GridEntry *e : { first, second })
+                    if (e->grid_type != kVec3f)
+                        Throw("nanovdbvolume: \"%s\": the 6-channel pair \"%s[0:3]\", "
+                              "\"%s[3:6]\" must be two Vec3f grids; \"%s\" is %s", m_filename,
+                              base, base, e->name, loader::grid_type_name(e->grid_type));
+            } else {
+                first = &loader::select_grid(m_filename, grids, selector);
+            }
+            m_grid_index = uint32_t(first - grids.data());
+            loader::GridSummary summary = load_entry(*first, m_sampler, m_facts, second);
+            if (second) {
+                m_second = std::make_unique<Sampler>();
+                loader::GridSummary s2 = load_entry(*second, *m_second, m_second_facts, true);
+                check_same_box(summary, s2, first->name, second->name);
+                m_facts.name = base;
+            }
+            return summary;
         } catch (const loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
+    }
+
+    nanovdb_loader::GridSummary load_entry(const nanovdb_loader::GridEntry &entry, Sampler &s,
+                                           GridFacts &facts, bool six) {
+        facts.name = entry.name;
+        return load(nanovdb_loader::GridSource::file(m_filename, entry), entry.grid_size,
+                    std::nullopt, s, facts, six);
     }
 
     /// The same for a grid built in memory (memory_source.h); `box`: the
     /// volume's box if it is not the active one
     nanovdb_loader::GridSummary load_bytes(const std::string &name,
                                            const std::vector<uint8_t> &bytes,
-                                           const std::optional<nanovdb_loader::IndexBox> &box) {
-        namespace loader = nanovdb_loader;
+                                           const std::optional<nanovdb_loader::IndexBox> &box,
+                                           Sampler &s, GridFacts &facts, bool six) {
         try {
-            m_grid_name = name;
-            HostBlock host = allocate(bytes.size());
-            loader::DecodedGrid decoded = loader::decode_grid_bytes(
-                m_filename, name, bytes.data(), bytes.size(), host.get(), m_backend_bytes,
-                m_invalid_values);
-            m_grid_type = decoded.grid.summary().grid_type;
-            m_grid_class = decoded.grid.summary().grid_class;
-            return adopt(std::move(host), decoded, box);
-        } catch (const loader::Error &e) {
+            facts.name = name;
+            return load(nanovdb_loader::GridSource::memory(m_filename, name, bytes.data(),
+                                                           bytes.size()),
+                        bytes.size(), box, s, facts, six);
+        } catch (const nanovdb_loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
     }
 
-    using HostBlock = std::unique_ptr<uint32_t[], void (*)(void *)>;
+    /// The two grids of a 6-channel volume must share their active box
+    void check_same_box(const nanovdb_loader::GridSummary &a,
+                        const nanovdb_loader::GridSummary &b, const std::string &name_a,
+                        const std::string &name_b) const {
+        for (int k = 0; k < 3; ++k)
+            if (a.bbox_min[k] != b.bbox_min[k] || a.bbox_max[k] != b.bbox_max[k] ||
+                a.empty != b.empty)
+                Throw("nanovdbvolume: \"%s\": the grids \"%s\" and \"%s\" of a 6-channel "
+                      "volume have different active boxes", m_filename, name_a, name_b);
+    }
+
+    using HostBlock = typename Sampler::HostBlock;
 
     /// One host block for `bytes` of grid, padded to 64 bytes: the final
     /// buffer on scalar and LLVM variants (LLVM kernels read host memory in
     /// place), the staging buffer on CUDA
-    HostBlock allocate(uint64_t bytes) {
-        m_grid_bytes = (size_t) bytes;
-        m_backend_bytes = ((m_grid_bytes + 63) / 64) * 64;
+    HostBlock allocate(uint64_t bytes, GridFacts &facts) {
+        facts.grid_bytes = (size_t) bytes;
+        facts.backend_bytes = ((facts.grid_bytes + 63) / 64) * 64;
         HostBlock host(nullptr, std::free);
         void *ptr = nullptr;
-        if (posix_memalign(&ptr, 64, m_backend_bytes) != 0 || !ptr)
+        if (posix_memalign(&ptr, 64, facts.backend_bytes) != 0 || !ptr)
             Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
-                  m_filename, m_grid_bytes, m_grid_name);
+                  m_filename, facts.grid_bytes, facts.name);
         host.reset((uint32_t *) ptr);
         return host;
     }
 
-    /// A decoded grid in `host`: its bounds (max(), per-node majorants) and
-    /// the hand-off to the backend; sets m_grid, m_reader, the value range.
-    /// `volume_box`: the volume's box if it is not the active one.
-    nanovdb_loader::GridSummary adopt(HostBlock host, const nanovdb_loader::DecodedGrid &decoded,
-                                      const std::optional<nanovdb_loader::IndexBox> &volume_box) {
+    /**
+     * The loader's one call (nanovdb_loader::prepare_grid: decode, validate,
+     * value policy, reader plan, max(), per-node majorants, their mean, and
+     * for spectral Vec3f grids the colours as coefficients) into one host
+     * block, then the hand-off to the backend, into sampler `s`.
+     * `volume_box`: the volume's box if it is not the active one; `six`: one
+     * of the two grids of a 6-channel volume (never converted into spectra).
+     */
+    nanovdb_loader::GridSummary load(const nanovdb_loader::GridSource &source, uint64_t bytes,
+                                     const std::optional<nanovdb_loader::IndexBox> &volume_box,
+                                     Sampler &s, GridFacts &facts, bool six) {
         namespace loader = nanovdb_loader;
-        namespace backend = nanovdb_drjit::backend;
-        const bool vec3 = m_grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
-        // Spectral variants turn colours into sRGB-model coefficients
-        // and a scale, as gridvolume does (unless raw)
-        const bool spectral = vec3 && is_spectral_v<Spectrum> && !m_raw;
-        const size_t word_count = m_backend_bytes / 4;
-        for (const std::string &warning : decoded.warnings)
-            Log(Warn, "%s", warning);
-        m_reader = Reader::from_plan(decoded.plan);
-        loader::GridSummary summary = decoded.grid.summary();
+        HostBlock host = allocate(bytes, facts);
+        loader::PrepareOptions options;
+        options.invalid_values = m_invalid_values;
+        options.volume_box = volume_box;
         // max(): what lookups inside the volume can return (its box, and the
         // ring trilinear stencils reach unless they clamp to the box), not
-        // every value the grid stores; lookups are clamped to it (lookup())
-        m_grid_max_host = decoded.grid.values().max;
-        const loader::IndexBox box =
-            volume_box ? loader::lookup_box(*volume_box, !m_nearest && !m_clamp)
-                       : loader::lookup_box(summary, !m_nearest && !m_clamp);
-        m_max_host = loader::max_in_box(decoded.grid, box);
-        if (vec3) { // per channel: the clamp of each channel, max_per_channel()
-            std::array<float, 3> m = loader::max_in_box_per_channel(decoded.grid, box);
-            for (int k = 0; k < 3; ++k)
-                m_max3_host[k] = m[k];
-        } else {
-            m_max3_host = ScalarVector3f(m_max_host);
+        // every value the grid stores; the sampler clamps lookups to it
+        options.ring = !m_nearest && !m_clamp;
+        // Spectral variants turn colours into sRGB-model coefficients and a
+        // scale, as gridvolume does (unless raw; never for 6 channels): a
+        // spectrum is scale * S(coefficients), S in [0, 1], scale = 2 max(rgb)
+        if (is_spectral_v<Spectrum> && !m_raw && !six)
+            options.spectral = loader::SpectralConversion{
+                [](const float rgb[3], float coeff[3]) {
+                    ScalarColor3f color(rgb[0], rgb[1], rgb[2]);
+                    float scale = dr::max(color) * 2.f;
+                    dr::Array<float, 3> c = srgb_model_fetch(color / dr::maximum(1e-8f, scale));
+                    for (int k = 0; k < 3; ++k)
+                        coeff[k] = c[k];
+                    return scale;
+                },
+                2.f };
+        loader::PreparedGrid g = loader::prepare_grid(source, host.get(), facts.backend_bytes,
+                                                      options);
+        for (const std::string &warning : g.warnings)
+            Log(Warn, "%s", warning);
+        const loader::GridSummary &summary = g.grid.summary();
+        facts.grid_type = summary.grid_type;
+        facts.grid_class = summary.grid_class;
+        facts.name = summary.name; // the grid's own name (GridData)
+        facts.grid_max = g.grid_max;
+        // The hand-off to the backend (sampler_setup.h): the sampler owns the
+        // block from here on
+        nanovdb_mitsuba::SamplerSetup set;
+        try {
+            set = nanovdb_mitsuba::set_up_sampler(s, g, std::move(host), facts.backend_bytes / 4,
+                                                  m_clamp, volume_box);
+        } catch (const std::exception &e) {
+            Throw("nanovdbvolume: \"%s\": grid \"%s\" (%zu bytes): %s", m_filename, facts.name,
+                  facts.grid_bytes, e.what());
         }
-        // A spectrum is scale * S(coefficients), S in [0, 1], scale =
-        // 2 max(rgb): it is bounded by twice the largest channel
-        const float spectral_factor = spectral ? 2.f : 1.f;
-        if (spectral) {
-            m_max_host *= spectral_factor;
-            m_grid_max_host *= spectral_factor;
+        facts.max = set.max;
+        for (int k = 0; k < 3; ++k) {
+            facts.max3[k] = set.max3[k];
+            m_cell_base_host[k] = set.cell_base[k];
         }
-        m_max = dr::opaque<Float>(m_max_host);
-        for (int k = 0; k < 3; ++k)
-            m_max3[k] = dr::opaque<Float>(m_max3_host[k]);
-        m_grid_name = summary.name; // the grid's own name (GridData)
-        // Per-node bounds for majorant tracking, raised by 2^-20 for the
-        // few ulps by which rounded trilinear weights can overshoot
-        loader::NodeMajorants majorants = loader::node_majorants(decoded.grid);
-        int32_t base[3];
-        for (int k = 0; k < 3; ++k)
-            base[k] = summary.empty ? 0 : int32_t(uint32_t(summary.bbox_min[k]) & ~4095u);
-        m_majorants = nanovdb_drjit::MajorantGrid<UInt32>::make(
-            majorants.layout, majorants.values, (1.f + 0x1p-20f) * spectral_factor,
-            m_max_host, base);
-        if (m_clamp) { // (walk cells outside the box: see MajorantGrid)
-            const loader::IndexBox vb = volume_box ? *volume_box : loader::lookup_box(summary, false);
-            int32_t lo[3], hi[3];
-            for (int k = 0; k < 3; ++k) {
-                lo[k] = int32_t(uint32_t(vb.lo[k]) - uint32_t(base[k]));
-                hi[k] = int32_t(uint32_t(vb.hi[k]) - uint32_t(base[k]));
-            }
-            m_majorants.set_clamp_box(lo, hi, m_max_host);
-        }
-        m_majorant_bytes = (size_t) majorants.bytes();
-        const double mean = spectral_factor * loader::mean_bound(
-            decoded.grid, majorants, box, m_max_host / spectral_factor);
-        m_majorant_ratio = m_max_host > 0.f ? ScalarFloat(mean / m_max_host) : 1.f;
-        for (int k = 0; k < 3; ++k)
-            m_cell_base_host[k] = base[k];
-
-        if (spectral)
-            to_spectral_coefficients(decoded.grid, summary);
-
-        if constexpr (!dr::is_jit_v<Float>) {
-            m_grid = std::move(host);
-        } else if constexpr (dr::backend_v<Float> == JitBackend::LLVM) {
-            m_grid = UInt32::steal(backend::map_host_words(host.release(), word_count));
-        } else {
-            try {
-                m_grid = UInt32::steal(backend::upload_cuda_words(host.get(), word_count));
-            } catch (const std::exception &e) {
-                Throw("nanovdbvolume: \"%s\": grid \"%s\" (%zu bytes): %s", m_filename,
-                      m_grid_name, m_grid_bytes, e.what());
-            }
-        }
+        facts.majorant_bytes = set.majorant_bytes;
+        facts.scale_bytes = set.scale_bytes;
+        facts.majorant_ratio = facts.max > 0.f ? ScalarFloat(set.mean_bound / facts.max) : 1.f;
         return summary;
     }
 
-    /**
-     * Spectral variants, Vec3f grids (raw=false): gridvolume turns each
-     * voxel's colour into sRGB-model coefficients of rgb / scale and a scale
-     * = 2 max(rgb), 4 floats instead of 3. Here the coefficients replace the
-     * colour in place, so the tree is not copied, and the scales go where
-     * the grid has room: an internal node's table entry is 16 bytes for 12
-     * of value (its fourth word), and the others (leaf values, root tiles,
-     * the background) into one array beside the grid, indexed from the
-     * value's address: 4 bytes per leaf voxel, +33 % of the leaf bytes (the
-     * price of the fourth number, as for gridvolume). No colour is kept.
-     */
-    void to_spectral_coefficients(const nanovdb_loader::ValidatedGrid &grid,
-                                  const nanovdb_loader::GridSummary &s) {
-        namespace L = nanovdb_drjit::layout;
-        constexpr const L::GridTypeConstants &c = L::GRID_TYPE_CONSTANTS_VEC3F;
-        uint8_t *buf = const_cast<uint8_t *>(grid.data()); // the upload buffer, ours
-        auto convert = [](uint8_t *p) {
-            float rgb[3];
-            std::memcpy(rgb, p, 12);
-            ScalarColor3f color(rgb[0], rgb[1], rgb[2]);
-            float scale = dr::max(color) * 2.f;
-            ScalarColor3f norm = color / dr::maximum(1e-8f, scale);
-            dr::Array<float, 3> coeff = srgb_model_fetch(norm);
-            for (int k = 0; k < 3; ++k)
-                std::memcpy(p + 4 * k, &coeff[k], 4);
-            return scale;
-        };
-        const uint64_t leaves = s.node_count[0];
-        std::vector<float> scales(size_t(leaves) * 512 + s.root_tile_count + 1, 0.f);
-        for (uint64_t n = 0; n < leaves; ++n)
-            for (uint32_t v = 0; v < 512; ++v)
-                scales[size_t(n * 512 + v)] =
-                    convert(buf + grid.leaf_byte(n) + c.leaf_off_table + 12 * v);
-        auto internal = [&](int level, uint64_t table_off, uint64_t mask_off, uint32_t entries,
-                            uint64_t size) {
-            for (uint64_t n = 0; n < s.node_count[level]; ++n) {
-                uint8_t *node = buf + s.node_begin[level] + n * size;
-                for (uint32_t e = 0; e < entries; ++e) {
-                    uint32_t mask;
-                    std::memcpy(&mask, node + mask_off + 4 * (e >> 5), 4);
-                    if ((mask >> (e & 31)) & 1u)
-                        continue; // a child offset
-                    float scale = convert(node + table_off + 16 * uint64_t(e));
-                    std::memcpy(node + table_off + 16 * uint64_t(e) + 12, &scale, 4);
-                }
-            }
-        };
-        internal(2, c.upper_off_table, L::UPPER_OFF_CHILD_MASK, L::UPPER_TABLE_COUNT, c.upper_size);
-        internal(1, c.lower_off_table, L::LOWER_OFF_CHILD_MASK, L::LOWER_TABLE_COUNT, c.lower_size);
-        const uint64_t root = uint64_t(s.root_word) * 4;
-        for (uint32_t t = 0; t < s.root_tile_count; ++t)
-            scales[size_t(leaves * 512 + t)] =
-                convert(buf + root + c.root_size + uint64_t(t) * c.root_tile_size +
-                        c.root_tile_off_value);
-        scales.back() = convert(buf + root + c.root_off_background);
-
-        m_scale_bytes = scales.size() * sizeof(float);
-        m_scale_tiles = dr::opaque<UInt32>(uint32_t(leaves * 512));
-        m_scale_background = dr::opaque<UInt32>(uint32_t(scales.size() - 1));
-        m_leaf_begin_word = dr::opaque<UInt32>(uint32_t(s.node_begin[0] / 4));
-        m_tile_begin_word = dr::opaque<UInt32>(uint32_t(root / 4 + c.root_size / 4));
-        if constexpr (dr::is_jit_v<Float>)
-            m_scales = dr::load<Float>(scales.data(), scales.size());
-        else
-            m_scales = std::move(scales);
-    }
-
-    /// The active index box [min, max] (inclusive) becomes the volume's
-    /// extent. An empty grid reads as the single voxel at the origin, i.e.
-    /// its background everywhere.
+    /// The active index box [min, max] (inclusive), or a dense source's
+    /// whole box, becomes the volume's extent. An empty grid reads as the
+    /// single voxel at the origin, i.e. its background everywhere.
     void set_index_box(const nanovdb_loader::GridSummary &summary,
                        const std::optional<nanovdb_loader::IndexBox> &box) {
         m_background_host = summary.background;
@@ -1020,7 +899,7 @@ private:
                        bmax(summary.bbox_max[0], summary.bbox_max[1], summary.bbox_max[2]);
         if (summary.empty)
             bmin = bmax = ScalarVector3i(0);
-        if (box) { // a dense source: its whole box, active or not
+        if (box) {
             bmin = ScalarVector3i(box->lo[0], box->lo[1], box->lo[2]);
             bmax = ScalarVector3i(box->hi[0], box->hi[1], box->hi[2]);
         }
@@ -1034,14 +913,14 @@ private:
                       "axis %d, more than a Mitsuba volume resolution can hold.",
                       m_filename, m_grid_name, (long long) extent, k);
             m_resolution_host[k] = (int32_t) extent;
+            m_index_min_box[k] = bmin[k];
+            m_resolution_box[k] = (int32_t) extent;
         }
+        m_sampler.set_box(m_index_min_box, m_resolution_box, m_facts.grid_type, m_clamp);
         // Per-file values reach kernels as opaque variables, so that loading
         // another file does not recompile them.
-        for (int k = 0; k < 3; ++k) {
-            m_index_min[k]  = dr::opaque<Int32>(bmin[k]);
+        for (int k = 0; k < 3; ++k)
             m_resolution[k] = dr::opaque<Float>((ScalarFloat) m_resolution_host[k]);
-            m_last_voxel[k] = dr::opaque<Int32>(m_resolution_host[k] - 1);
-        }
     }
 
     /// use_grid_bbox (gridvolume's): the unit cube maps to the box the
@@ -1133,7 +1012,7 @@ private:
     /// rounded once: the index position of a lookup (relative to the box
     /// minimum, values at integers), + 0.5 (voxel ijk covers [ijk, ijk + 1)),
     /// + the box minimum - the walk's base
-    void set_cell_transform(const nanovdb_loader::GridSummary &) {
+    void set_cell_transform() {
         using Matrix4d = dr::Matrix<double, 4>;
         Matrix4d m = dr::identity<Matrix4d>();
         if (m_use_grid_transform) {
@@ -1155,55 +1034,38 @@ private:
 
 private:
     // Backend (JIT variables, opaque per file; plain values on scalars)
-    GridBuffer m_grid;            // the grid's 32-bit words
-    Reader m_reader;              // readers chosen by the loader's plan
-    Vector3i m_index_min;         // active box minimum
-    Vector3f m_resolution;        // active box extent in voxels, as Float
-    Vector3i m_last_voxel;        // extent - 1 (wrap_mode "clamp")
-    Matrix4f m_index_from_world;  // use_grid_transform: world -> index - min
-    Float m_max;                  // max(), the clamp of trilinear results
-    Vector3f m_max3;              // Vec3f: the clamp of each channel
-    ScalarGridScales m_scales;    // spectral Vec3f: each value's scale (see to_spectral_coefficients)
-    UInt32 m_scale_tiles, m_scale_background; // ... where root tiles' and the background's scales start
-    UInt32 m_leaf_begin_word, m_tile_begin_word; // ... the leaf array and the root tiles
-    nanovdb_drjit::MajorantGrid<UInt32> m_majorants; // per-node bounds (majorant walk)
-    Matrix4f m_cell_from_world;   // world -> the walk's cell space
+    Sampler m_sampler;                 // the grid and its lookups (channels 0-2 of 6)
+    std::unique_ptr<Sampler> m_second; // 6 channels: channels 3-5
+    Vector3f m_resolution;             // the box's extent in voxels, as Float
+    Matrix4f m_index_from_world;       // use_grid_transform: world -> index - min
+    Matrix4f m_cell_from_world;        // world -> the walk's cell space
 
     // Host
+    GridFacts m_facts, m_second_facts;
     ScalarVector3i m_index_min_host;
     ScalarVector3i m_resolution_host;
-    ScalarFloat m_max_host = 0.f;      // max(): the largest value lookups in the box return
-    ScalarFloat m_grid_max_host = 0.f; // the largest value the grid stores
-    ScalarVector3f m_max3_host;        // Vec3f: max() per channel (max_per_channel)
-    size_t m_scale_bytes = 0;          // spectral Vec3f: the scales beside the grid
+    int32_t m_index_min_box[3] = {}, m_resolution_box[3] = {};
     bool m_raw = false;                // Vec3f: no spectral conversion
     ScalarFloat m_background_host = 0.f;
-    uint32_t m_grid_type = 0;     // NanoVDB's GridType (layout.h)
-    uint32_t m_grid_class = 0;    // NanoVDB's GridClass (level set, fog volume, ...)
-    size_t m_grid_bytes = 0;      // the grid's bytes
-    size_t m_backend_bytes = 0;   // what the backend holds for it (padded to 64 B)
-    size_t m_majorant_bytes = 0;  // the per-node bounds beside it
-    ScalarFloat m_majorant_ratio = 1.f; // their mean over the volume / max()
-    int32_t m_cell_base_host[3] = { 0, 0, 0 };       // the walk's base (multiple of 4096)
-    dr::Matrix<double, 4> m_index_from_world_host;   // use_grid_transform, in double
+    int32_t m_cell_base_host[3] = { 0, 0, 0 };     // the walk's base (multiple of 4096)
+    dr::Matrix<double, 4> m_index_from_world_host; // use_grid_transform, in double
     bool m_nearest = false;
-    bool m_clamp = false;                        // wrap_mode "clamp": positions clamped to the box
+    bool m_clamp = false;              // wrap_mode "clamp": positions clamped to the box
     bool m_use_grid_transform = false;
-    bool m_count = false;                        // count_lookups
-    mutable UInt64 m_counters;                   // ... JIT: lookups, walk steps
-    mutable std::atomic<uint64_t> m_scalar_counters[kCounters] = {}; // ... scalar
     nanovdb_loader::InvalidValues m_invalid_values = nanovdb_loader::InvalidValues::Error;
     std::string m_filename, m_grid_name;
+    uint32_t m_grid_index = 0xffffffffu; // in the file's grids (memory sources: none)
+    /// traverse()'s copies of what it exposes
+    struct {
+        uint32_t grid_type = 0, grid_class = 0, channels = 1;
+        ScalarPoint3f bbox_min, bbox_max;
+        ScalarFloat max = 0.f;
+        double grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0;
+        double counters[(uint32_t) nanovdb_drjit::Counter::Count] = {};
+    } m_trav;
 
-    MI_TRAVERSE_CB(Base, m_grid, m_reader.root, m_reader.root_table, m_reader.block_min,
-                   m_reader.block_dims, m_index_min, m_resolution, m_last_voxel,
-                   m_index_from_world, m_max,
-                   m_majorants.table, m_majorants.leaf_begin, m_majorants.lower_begin,
-                   m_majorants.upper_begin, m_majorants.tile_begin, m_majorants.lower_slot,
-                   m_majorants.upper_slot, m_majorants.tile_slot, m_majorants.background,
-                   m_majorants.clamp, m_majorants.base, m_majorants.box_lo, m_majorants.box_hi,
-                   m_majorants.outside, m_cell_from_world, m_max3, m_scales,
-                   m_scale_tiles, m_scale_background, m_leaf_begin_word, m_tile_begin_word)
+    MI_TRAVERSE_CB(Base, m_sampler, m_second, m_resolution, m_index_from_world,
+                   m_cell_from_world)
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)

@@ -35,8 +35,23 @@ template <typename Float, typename Spectrum> struct MemorySource {
     nanovdb_loader::DenseValues dense;
     nanovdb_loader::SparseValues sparse;
     bool is_dense = false;
+    /// 6 channels (SGGX's S): two Vec3f grids, channels 0-2 and 3-5, each
+    /// from its own copy of those channels
+    bool six_channels = false;
+    std::vector<float> halves[2];
     std::optional<ScalarAffineTransform4f> bbox_transform; ///< a VolumeGrid's bbox -> unit cube
     ref<VolumeGrid> grid;               ///< keeps a VolumeGrid's values alive
+
+    /// A gridvolume file (.vol: dense, Mitsuba's own format), read by
+    /// Mitsuba's VolumeGrid
+    MemorySource(const std::string &vol_path) {
+        try {
+            grid = new VolumeGrid(fs::path(vol_path));
+        } catch (const std::exception &e) {
+            Throw("nanovdbvolume: \"%s\": not a readable .vol file: %s", vol_path, e.what());
+        }
+        set_volume_grid(vol_path);
+    }
 
     /// Reads the source; `grid_object`: "grid" is a VolumeGrid
     MemorySource(const Properties &props, bool grid_object) {
@@ -47,16 +62,16 @@ template <typename Float, typename Spectrum> struct MemorySource {
                 Throw("nanovdbvolume: the \"grid\" property must be a grid name (string) or a "
                       "VolumeGrid object, got %s", other ? other->to_string() : "null");
             ScalarVector3u size = grid->size();
-            label = tfm::format("grid: a VolumeGrid of %u x %u x %u voxels, %zu channels",
-                                size.x(), size.y(), size.z(), grid->channel_count());
-            set_dense(grid->data(), { size.x(), size.y(), size.z() },
-                      (uint32_t) grid->channel_count());
-            bbox_transform = grid->bbox_transform();
+            set_volume_grid(tfm::format("grid: a VolumeGrid of %u x %u x %u voxels, %zu channels",
+                                        size.x(), size.y(), size.z(), grid->channel_count()));
         } else if (props.has_property("data")) {
             const TensorXf &t = props.get_any<TensorXf>("data");
             if (t.ndim() != 3 && t.ndim() != 4)
                 Throw("nanovdbvolume: \"data\" must be a tensor of shape (z, y, x) or "
                       "(z, y, x, channels), as gridvolume's; it has %zu dimensions", t.ndim());
+            if (t.ndim() == 4 && t.shape(3) != 1 && t.shape(3) != 3 && t.shape(3) != 6)
+                Throw("nanovdbvolume: \"data\" has %zu channels; 1, 3 or 6 are supported (as "
+                      "for gridvolume)", t.shape(3));
             uint32_t channels = t.ndim() == 4 ? (uint32_t) t.shape(3) : 1;
             label = tfm::format("data: a %zu x %zu x %zu tensor, %u channels", t.shape(2),
                                 t.shape(1), t.shape(0), channels);
@@ -91,29 +106,66 @@ template <typename Float, typename Spectrum> struct MemorySource {
             sparse.values = values.data();
             sparse.count = n;
             sparse.channels = channels;
+            if (channels == 6)
+                split_six(values.data(), n);
         }
     }
 
-    /// Builds the grid; for a dense source also returns its box
+    /// Builds the grid (`half` 1: channels 3-5 of a 6-channel source); for
+    /// a dense source also returns its box
     std::pair<nanovdb_loader::BuiltGrid, std::optional<nanovdb_loader::IndexBox>>
-    build(const nanovdb_loader::BuildOptions &options) const {
-        if (!is_dense)
-            return { nanovdb_loader::build_grid(label, sparse, options), std::nullopt };
+    build(const nanovdb_loader::BuildOptions &options, int half = 0) const {
+        if (!is_dense) {
+            nanovdb_loader::SparseValues sv = sparse;
+            if (six_channels) {
+                sv.values = halves[half].data();
+                sv.channels = 3;
+            }
+            return { nanovdb_loader::build_grid(label, sv, options), std::nullopt };
+        }
         nanovdb_loader::IndexBox box;
         for (int k = 0; k < 3; ++k) {
             box.lo[k] = 0;
             box.hi[k] = int32_t(dense.size[k]) - 1;
         }
-        return { nanovdb_loader::build_grid(label, dense, options), box };
+        nanovdb_loader::DenseValues dv = dense;
+        if (six_channels) {
+            dv.values = halves[half].data();
+            dv.channels = 3;
+        }
+        return { nanovdb_loader::build_grid(label, dv, options), box };
     }
 
 private:
+    void set_volume_grid(const std::string &label_) {
+        label = label_;
+        ScalarVector3u size = grid->size();
+        uint32_t channels = (uint32_t) grid->channel_count();
+        if (channels != 1 && channels != 3 && channels != 6)
+            Throw("nanovdbvolume: \"%s\": %u channels; 1, 3 or 6 are supported (as for "
+                  "gridvolume)", label, channels);
+        set_dense(grid->data(), { size.x(), size.y(), size.z() }, channels);
+        bbox_transform = grid->bbox_transform();
+    }
+
     void set_dense(const float *ptr, std::array<uint32_t, 3> size, uint32_t channels) {
         is_dense = true;
         dense.values = ptr;
         for (int k = 0; k < 3; ++k)
             dense.size[k] = size[k];
         dense.channels = channels;
+        if (channels == 6)
+            split_six(ptr, uint64_t(size[0]) * size[1] * size[2]);
+    }
+
+    void split_six(const float *ptr, uint64_t count) {
+        six_channels = true;
+        for (int h = 0; h < 2; ++h) {
+            halves[h].resize(size_t(count) * 3);
+            for (uint64_t i = 0; i < count; ++i)
+                for (int c = 0; c < 3; ++c)
+                    halves[h][size_t(i * 3 + c)] = ptr[i * 6 + 3 * h + c];
+        }
     }
 
     /// A JIT array's values on the host (one transfer), or a copy of a

@@ -9,6 +9,8 @@
 
 #include <nanovdb_loader/values.h>
 
+#include <cstdio>
+
 TEST_CASE("validate_grid on NanoVDB-made float grids") {
     // Built once for all subcases (doctest re-runs this body for each)
     static const Handle sphere = fog_sphere(), torus = ls_torus(), tiles = tile_grid(),
@@ -176,6 +178,27 @@ TEST_CASE("validate_grid rejects hostile buffers") {
         b = good;
         poke<uint64_t>(b, tree_off + 16, ~uint64_t(0) - 5); // upper offset
         CHECK_IO_ERROR(validate(b), p, "upper node array", "does not fit");
+    }
+    SUBCASE("a root tile key that no coordinate has") {
+        // PNanoVDB's coord_to_key leaves the top bit of each 21-bit field
+        // (20, 41, 62) and bit 63 clear: its search never finds such a tile,
+        // while the O(1) root index (by block: those bits dropped) would
+        const uint64_t key_at = offset_in(grid, root.data()->tile(0));
+        CHECK(key_at == root_off + 64);
+        for (int bit : { 20, 41, 62, 63 }) {
+            INFO("bit " << bit);
+            Bytes b = good;
+            const uint64_t key = peek<uint64_t>(good, key_at) | (uint64_t(1) << bit);
+            poke<uint64_t>(b, key_at, key);
+            char hex[32];
+            std::snprintf(hex, sizeof(hex), "0x%016llx", (unsigned long long) key);
+            CHECK_IO_ERROR(validate(b), p, "root tile 0", hex, "bit " + std::to_string(bit),
+                           "no coordinate has this key");
+        }
+        Bytes b = good;
+        poke<uint64_t>(b, key_at, peek<uint64_t>(good, key_at) | (uint64_t(1) << 20) |
+                                      (uint64_t(1) << 63));
+        CHECK_IO_ERROR(validate(b), p, "root tile 0", "bits 20 (the top bit of z's field), 63");
     }
     // A root tile with a child.
     uint32_t child_tile = 0;

@@ -13,7 +13,10 @@
 #include <openvdb/openvdb.h>
 
 #include "convert.h"
+#include "describe.h"
 #include "generate.h"
+#include "temp_file.h"
+#include "testdata/generate_cases.h"
 
 using namespace vdb2nvdb;
 
@@ -93,7 +96,7 @@ void print_help() {
         "\n"
         "generate CASE OUT.vdb [OUT.nvdb]: writes a synthetic test volume with OpenVDB\n"
         "and, given OUT.nvdb, converts it with the options above. Cases:\n");
-    for (const auto &c : generate_cases())
+    for (const auto &c : nvdb_testdata::generate_cases())
         std::printf("  %-24s %s\n", c.first.c_str(), c.second.c_str());
     std::printf(
         "\n"
@@ -235,7 +238,7 @@ int run(int argc, char **argv) {
 
     if (generate_mode) {
         if (list_cases) {
-            for (const auto &c : generate_cases())
+            for (const auto &c : nvdb_testdata::generate_cases())
                 std::printf("%-24s %s\n", c.first.c_str(), c.second.c_str());
             return ExitOk;
         }

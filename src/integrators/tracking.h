@@ -1,0 +1,292 @@
+/*
+    src/integrators/tracking.h -- tracking through a medium whose volume
+    offers local majorants (nanovdb_mitsuba/local_majorants.h): the seam
+    between the walk, which knows the tree, and the estimators, which know
+    the physics (pbrt-v4's SampleT_maj and its callers, in Dr.Jit)
+
+      sample_t_maj()   tentative collisions along a ray, segment by segment of
+                       the walk: at rate mu(t) = scale x the segment's bound,
+                       i.e. with density mu(t) exp(-int_0^t mu). At each it
+                       calls the estimator's `collide`, which says whether the
+                       lane goes on.
+      delta_tracking() the first real collision (the path's free flight)
+      ratio_tracking() the transmittance estimate (shadow rays)
+
+    Both estimators are unbiased for any majorant that bounds the medium's
+    extinction (each segment's bound does, scale times the largest value a
+    lookup can return there, filter footprint included: majorant_walk.h).
+    Every loop has a bound a valid ray cannot reach (volpathlocal.cpp,
+    LoopBound): the walk's steps and the tentative collisions per flight.
+*/
+
+#pragma once
+
+#include <mitsuba/core/ray.h>
+#include <mitsuba/render/interaction.h>
+#include <mitsuba/render/medium.h>
+#include <mitsuba/render/sampler.h>
+
+#include <nanovdb_mitsuba/local_majorants.h>
+
+NAMESPACE_BEGIN(mitsuba)
+
+/// The loops whose iterations are bounded, as bits of a `tripped` mask
+enum LoopBound : uint32_t { PathLoop = 0, ShadowLoop, WalkLoop, DeltaLoop, RatioLoop,
+                            LoopCount };
+
+template <typename Float, typename Spectrum> struct Tracking {
+    MI_IMPORT_TYPES(Medium, MediumPtr, Sampler)
+    using Majorants = LocalMajorants<Float, Spectrum>;
+    using Walk = typename Majorants::Walk;
+    using WalkRay = typename Majorants::WalkRay;
+
+    /// A medium tracked through its volume's local majorants
+    struct TrackedMedium {
+        const Medium *medium;
+        const Majorants *volume;
+        ScalarFloat scale;        ///< the medium's density scale
+        ScalarFloat max_majorant; ///< scale x the largest segment bound
+    };
+
+    /// A flight through a tracked medium: the walk, the position t along the
+    /// ray, and the optical depth tau left to the next tentative collision
+    struct Flight {
+        Mask alive;     ///< false once the walk has ended (or the estimator stopped)
+        Mask searching; ///< inside next_collision(): not yet at a collision
+        Walk walk;
+        Float t, tau;
+        UInt32 steps, collisions;          ///< walk steps, tentative collisions so far
+        UInt32 max_steps, max_collisions;  ///< their bounds
+        UInt32 tripped;                    ///< the bounds that stopped it (bits)
+        DRJIT_STRUCT(Flight, alive, searching, walk, t, tau, steps, collisions, max_steps,
+                     max_collisions, tripped)
+    };
+
+    /// The parameter range of `ray` inside the medium's box, up to tmax
+    static std::pair<Float, Float> medium_range(const TrackedMedium &k, const Ray3f &ray,
+                                                const Float &tmax, Mask &active) {
+        auto [hit, mint, maxt] = k.medium->intersect_aabb(ray);
+        mint = dr::maximum(mint, 0.f);
+        maxt = dr::minimum(maxt, tmax);
+        active &= hit && (mint < maxt);
+        return { mint, maxt };
+    }
+
+    /// A medium interaction at distance t along the ray, for evaluating the
+    /// medium there and scattering from it
+    static MediumInteraction3f interaction_at(const TrackedMedium &k, const Ray3f &ray,
+                                              const Float &t, const Float &mint) {
+        MediumInteraction3f mei = dr::zeros<MediumInteraction3f>();
+        mei.wi = -ray.d;
+        mei.sh_frame = Frame3f(mei.wi);
+        mei.time = ray.time;
+        mei.wavelengths = ray.wavelengths;
+        mei.t = t;
+        mei.p = ray(t);
+        mei.medium = MediumPtr(k.medium);
+        mei.mint = mint;
+        return mei;
+    }
+
+    /// A float bound as an iteration count (NaN, infinity and >= 2^31: 2^31)
+    static UInt32 to_bound(const Float &n) {
+        return dr::select(n < 2147483648.f, UInt32(dr::maximum(n, 0.f)), UInt32(1u << 31));
+    }
+
+    /// A flight over [mint, maxt] with a fresh tau, and its loop bounds
+    static Flight begin_flight(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
+                               const Float &maxt, Sampler *sampler, const Mask &active) {
+        Flight f;
+        f.alive = active;
+        f.searching = false;
+        f.walk = k.volume->walk_begin(wr, mint, maxt, active);
+        f.t = mint;
+        f.tau = -dr::log(1.f - sampler->next_1d(active));
+        f.steps = f.collisions = f.tripped = 0;
+        // Walk steps: every step crosses a cell face, and cells are at least
+        // 8 voxels wide, so a segment crosses at most sum_a |d_a| len / 8 + 3
+        // of them; twice that, and 64 for round-off
+        Float len = dr::maximum(maxt - mint, 0.f),
+              faces = (dr::abs(wr.direction.x()) + dr::abs(wr.direction.y()) +
+                       dr::abs(wr.direction.z())) * len * 0.125f + 3.f;
+        f.max_steps = to_bound(2.f * faces + 64.f);
+        // Tentative collisions: Poisson with a mean of at most T, the global
+        // majorant's optical depth over the range; T + 10 sqrt(T) + 64 is
+        // exceeded with probability below 1e-20
+        Float T = k.max_majorant * len;
+        f.max_collisions = to_bound(T + 10.f * dr::sqrt(T) + 64.f);
+        return f;
+    }
+
+    /**
+     * Moves every living flight to its next tentative collision: consumes
+     * tau segment by segment of the walk (tentative collisions come at rate
+     * mu = scale x the segment's bound) until tau < mu x (what is left of
+     * the segment), where t becomes the collision; a flight whose walk ends
+     * first dies. One loop of walk steps only, so that the lookups that
+     * follow run for all lanes of a packet at once.
+     */
+    static void next_collision(const TrackedMedium &k, const WalkRay &wr, Flight &flight) {
+        flight.searching = flight.alive;
+        const ScalarFloat scale = k.scale;
+        dr::tie(flight) = dr::while_loop(
+            dr::make_tuple(flight), [](const Flight &f) { return f.searching; },
+            [k, wr, scale](Flight &f) {
+                Float mu = scale * f.walk.majorant, end = f.walk.segment_end(),
+                      t = dr::maximum(f.t, f.walk.segment_begin()), depth = mu * (end - t);
+                Mask found = f.searching && (f.tau < depth), miss = f.searching && !found;
+                f.t = dr::select(found, t + f.tau / mu, f.t);
+                f.searching &= !found;
+                dr::masked(f.tau, miss) = f.tau - depth;
+                dr::masked(f.t, miss) = end;
+                Mask more = k.volume->walk_advance(f.walk, wr, miss);
+                f.alive &= !(miss && !more);
+                f.searching &= more;
+                // The loop bound: a stopped walk ends the flight (no collision)
+                dr::masked(f.steps, miss) += 1;
+                Mask trip = f.searching && f.steps > f.max_steps;
+                dr::masked(f.tripped, trip) |= (1u << WalkLoop);
+                f.alive &= !trip;
+                f.searching &= !trip;
+            },
+            "volpathlocal: walk to the next collision");
+    }
+
+    /**
+     * pbrt-v4's SampleT_maj over the walk: the tentative collisions along
+     * `ray` in medium k up to tmax. At each, collide(state, t, mu, active)
+     * (t the collision, mu = scale x the segment's bound) updates the
+     * estimator's state and returns the lanes that go on; those draw a new
+     * tau. `loop` names the estimator's loop (its bound). Returns the
+     * flight, ended: its walk ran out, or collide stopped it.
+     */
+    template <typename State, typename Collide>
+    static Flight sample_t_maj(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
+                               const Float &maxt, Sampler *sampler, State &state,
+                               LoopBound loop, const Mask &active, Collide &&collide,
+                               const char *label) {
+        struct Loop {
+            Flight flight;
+            State state;
+            Sampler *sampler;
+            DRJIT_STRUCT(Loop, flight, state, sampler)
+        } ls = { begin_flight(k, wr, mint, maxt, sampler, active), state, sampler };
+        const ScalarFloat scale = k.scale;
+        dr::tie(ls) = dr::while_loop(
+            dr::make_tuple(ls), [](const Loop &ls) { return ls.flight.alive; },
+            [k, wr, scale, loop, collide](Loop &ls) {
+                next_collision(k, wr, ls.flight);
+                Mask hit = ls.flight.alive;
+                if (dr::none_or<false>(hit))
+                    return; // (scalar: the walk ended)
+                Float mu = scale * ls.flight.walk.majorant;
+                Mask more = collide(ls.state, ls.flight.t, mu, ls.sampler, hit);
+                dr::masked(ls.flight.tau, hit && more) =
+                    -dr::log(1.f - ls.sampler->next_1d(hit && more));
+                ls.flight.alive &= !(hit && !more);
+                // The loop bound: past it the flight ends here, as if the
+                // walk had ended
+                dr::masked(ls.flight.collisions, hit) += 1;
+                Mask trip = hit && ls.flight.alive &&
+                            ls.flight.collisions > ls.flight.max_collisions;
+                dr::masked(ls.flight.tripped, trip) |= (1u << loop);
+                ls.flight.alive &= !trip;
+            },
+            label);
+        state = ls.state;
+        return ls.flight;
+    }
+
+    /// The first real collision of delta tracking, and the path's factor
+    struct Collision {
+        Mask real;                    ///< a real collision at mei (else none before tmax)
+        MediumInteraction3f mei;
+        UnpolarizedSpectrum weight;   ///< the path throughput's factor (every lane)
+        UInt32 tripped;               ///< loop bounds that stopped the flight (bits)
+    };
+
+    /**
+     * Delta tracking along `ray` through tracked medium k up to tmax (the
+     * nearest surface). A tentative collision at t is real with probability
+     * P = mean(mu_t(t)) / mu, null otherwise; the path's weight is the
+     * product over the null collisions of (mu - mu_t) / (mu (1 - P)) (1 for
+     * a grey extinction), times mu_s / mean(mu_t) at the real one (a path
+     * that meets no real collision keeps the product of the null factors):
+     * volpath's estimator, with the local majorant mu.
+     */
+    static Collision delta_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
+                                    const Float &coarse_depth, Sampler *sampler, Mask active) {
+        auto [mint, maxt] = medium_range(k, ray, tmax, active);
+        WalkRay wr = k.volume->walk_ray(
+            ray, Float(k.scale > 0.f ? coarse_depth / k.scale : 0.f), active);
+        struct State {
+            UnpolarizedSpectrum weight, sigma_s, sigma_t;
+            Float majorant;
+            Mask real;
+            DRJIT_STRUCT(State, weight, sigma_s, sigma_t, majorant, real)
+        } st = { UnpolarizedSpectrum(1.f), dr::zeros<UnpolarizedSpectrum>(),
+                 dr::zeros<UnpolarizedSpectrum>(), Float(0.f), Mask(false) };
+        Flight f = sample_t_maj(
+            k, wr, mint, maxt, sampler, st, DeltaLoop, active,
+            [k, ray, mint](State &s, const Float &t, const Float &mu, Sampler *sampler_,
+                           const Mask &hit) {
+                Float xi = sampler_->next_1d(hit);
+                auto [sigma_s, sigma_n, sigma_t] =
+                    k.medium->get_scattering_coefficients(interaction_at(k, ray, t, mint), hit);
+                DRJIT_MARK_USED(sigma_n);
+                Float p_real = dr::mean(sigma_t) / mu;
+                Mask real = hit && (xi < p_real), null = hit && !real;
+                dr::masked(s.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));
+                dr::masked(s.sigma_s, real) = sigma_s;
+                dr::masked(s.sigma_t, real) = sigma_t;
+                dr::masked(s.majorant, real) = mu;
+                s.real |= real;
+                return !real;
+            },
+            "volpathlocal: delta tracking");
+
+        Collision c;
+        c.real = st.real;
+        c.tripped = f.tripped;
+        c.mei = interaction_at(k, ray, dr::select(st.real, f.t, dr::Infinity<Float>), mint);
+        c.mei.p = ray(f.t);
+        c.mei.sigma_s = st.sigma_s;
+        c.mei.sigma_t = st.sigma_t;
+        c.mei.sigma_n = st.majorant - st.sigma_t;
+        c.mei.combined_extinction = st.majorant;
+        // The null collisions' factors apply to every path, real collision
+        // or not (they are 1 for a grey extinction)
+        c.weight = st.weight * dr::select(st.real, st.sigma_s / dr::mean(st.sigma_t),
+                                          UnpolarizedSpectrum(1.f));
+        return c;
+    }
+
+    /**
+     * Ratio tracking along `ray` through tracked medium k up to tmax: the
+     * transmittance estimate prod (mu - mu_t(t)) / mu over the tentative
+     * collisions (stopping where it reaches 0), and the bounds that tripped.
+     */
+    static std::pair<UnpolarizedSpectrum, UInt32>
+    ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
+                   const Float &coarse_depth, Sampler *sampler, Mask active) {
+        auto [mint, maxt] = medium_range(k, ray, tmax, active);
+        WalkRay wr = k.volume->walk_ray(
+            ray, Float(k.scale > 0.f ? coarse_depth / k.scale : 0.f), active);
+        UnpolarizedSpectrum tr(1.f);
+        Flight f = sample_t_maj(
+            k, wr, mint, maxt, sampler, tr, RatioLoop, active,
+            [k, ray, mint](UnpolarizedSpectrum &tr_, const Float &t, const Float &mu, Sampler *,
+                           const Mask &hit) {
+                auto [sigma_s, sigma_n, sigma_t] =
+                    k.medium->get_scattering_coefficients(interaction_at(k, ray, t, mint), hit);
+                DRJIT_MARK_USED(sigma_s);
+                DRJIT_MARK_USED(sigma_n);
+                dr::masked(tr_, hit) *= (mu - sigma_t) / mu;
+                return !dr::all(tr_ == 0.f);
+            },
+            "volpathlocal: ratio tracking");
+        return { tr, f.tripped };
+    }
+};
+
+NAMESPACE_END(mitsuba)

@@ -1,0 +1,80 @@
+// Reading .vdb and .nvdb files. See read.h.
+
+#include "read.h"
+
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include <openvdb/io/Stream.h>
+#include <nanovdb/util/IO.h>
+#include <nanovdb/util/NanoToOpenVDB.h>
+
+#include "error.h"
+#include "format.h"
+
+namespace vdb2nvdb {
+
+namespace fs = std::filesystem;
+
+openvdb::GridPtrVec read_vdb(const std::string &path) {
+    std::error_code ec;
+    if (!fs::exists(path, ec))
+        throw Error(dq(path) + ": no such file");
+    if (fs::is_directory(path, ec))
+        throw Error(dq(path) + ": is a directory, not a .vdb file");
+    try {
+        // io::Stream reads the grids in file order (io::File::getGrids()
+        // returns them sorted by name).
+        std::ifstream is(path, std::ios::binary);
+        if (!is)
+            throw Error(dq(path) + ": cannot open: " + std::strerror(errno));
+        openvdb::io::Stream stream(is, /*delayLoad=*/false);
+        openvdb::GridPtrVecPtr grids = stream.getGrids();
+        if (!grids)
+            throw Error(dq(path) + ": cannot read as an OpenVDB file: no grids read");
+        return *grids;
+    } catch (const openvdb::Exception &e) {
+        throw Error(dq(path) + ": cannot read as an OpenVDB file: " + e.what());
+    } catch (const std::exception &e) {
+        throw Error(dq(path) + ": cannot read as an OpenVDB file (corrupt or truncated?): " +
+                    e.what());
+    }
+}
+
+openvdb::GridPtrVec read_nvdb(const std::string &path) {
+    std::error_code ec;
+    if (!fs::exists(path, ec))
+        throw Error(dq(path) + ": no such file");
+    std::vector<nanovdb::GridHandle<nanovdb::HostBuffer>> handles;
+    try {
+        handles = nanovdb::io::readGrids<nanovdb::HostBuffer>(path);
+    } catch (const std::exception &e) {
+        throw Error(dq(path) + ": cannot read as a NanoVDB file (NanoVDB " +
+                    std::to_string(NANOVDB_MAJOR_VERSION_NUMBER) + "." +
+                    std::to_string(NANOVDB_MINOR_VERSION_NUMBER) + "'s reader): " + e.what());
+    }
+    openvdb::GridPtrVec grids;
+    for (size_t i = 0; i < handles.size(); ++i) {
+        const nanovdb::GridMetaData *m = handles[i].gridMetaData();
+        const std::string name = m ? m->shortGridName() : std::to_string(i);
+        try {
+            grids.push_back(nanovdb::nanoToOpenVDB(handles[i]));
+        } catch (const std::exception &e) {
+            std::string type = m ? nanovdb::toStr(m->gridType()) : "?";
+            if (type == "End") // a type newer than this NanoVDB (OnIndex, ...)
+                type = "grid type " + std::to_string(uint32_t(m->gridType()));
+            note(dq(path) + ": grid " + dq(name) + " (" + type + "): not read: " + e.what());
+        }
+    }
+    if (grids.empty())
+        throw Error(dq(path) + ": no grid that NanoVDB can read back into OpenVDB");
+    return grids;
+}
+
+openvdb::GridPtrVec read_input(const std::string &path) {
+    const bool nvdb = path.size() >= 5 && path.compare(path.size() - 5, 5, ".nvdb") == 0;
+    return nvdb ? read_nvdb(path) : read_vdb(path);
+}
+} // namespace vdb2nvdb
