@@ -498,9 +498,10 @@ leaf_fpn_read_float(const Buffer &buf, const UInt32 &address, const Coord<UInt32
 //  Traversal: value address and level
 // ---------------------------------------------------------------------------
 
-/// PNanoVDB: pnanovdb_lower_get_value_address_and_level
+/// PNanoVDB: pnanovdb_lower_get_value_address_and_level (inlined: the
+/// stencil calls it for each of its 8 corners)
 template <uint32_t GridType = GRID_TYPE_FLOAT, typename UInt32, typename Buffer>
-AddressAndLevel<UInt32>
+DRJIT_INLINE AddressAndLevel<UInt32>
 lower_get_value_address_and_level(const Buffer &buf,
                                   const LowerHandle<UInt32> &lower,
                                   const Coord<UInt32> &ijk,

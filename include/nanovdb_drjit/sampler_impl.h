@@ -133,7 +133,7 @@ template <typename Float>
 Float GridSampler<Float>::trilinear(const Vector3f &rel_, const Mask &active) const {
     count(Counter::Lookup, active);
     Vector3f rel = clamp_position(rel_);
-    Vector3i base = index_floor(rel);
+    Vector3i base = dr::floor2int<Vector3i>(rel); // (rel in the int32 range already)
     Vector3f w1 = rel - Vector3f(base), w0 = 1.f - w1;
     Coord<UInt32> c = absolute(base);
     Float result = layout::visit_value_type<false>(grid_type, [&](auto type) {
@@ -193,7 +193,7 @@ template <typename Float>
 typename GridSampler<Float>::Stencil GridSampler<Float>::stencil3(const Vector3f &rel_,
                                                                   const Mask &active) const {
     Vector3f rel = clamp_position(rel_);
-    Vector3i base = index_floor(rel);
+    Vector3i base = dr::floor2int<Vector3i>(rel); // (rel in the int32 range already)
     Vector3f w1 = rel - Vector3f(base), w0 = 1.f - w1;
     Stencil s;
     s.ijk0 = absolute(base);

@@ -151,7 +151,12 @@ private:
                                            : m_upper_max[at];
         if (!(bound > m))
             return;
-        const uint32_t log2dim = m_view.level(c.level).log2dim, last = (1u << log2dim) - 1;
+        // (constants, not m_view.level(): the loops below run for every
+        // neighbour of every node, and known shifts make them cheaper)
+        const uint32_t log2dim = c.level == 0   ? layout::LEAF_LOG2_DIM
+                                 : c.level == 1 ? layout::LOWER_LOG2_DIM
+                                                : layout::UPPER_LOG2_DIM,
+                       last = (1u << log2dim) - 1;
         uint32_t lo[3], hi[3];
         for (int a = 0; a < 3; ++a) {
             lo[a] = sel[a] == HIGH ? last : 0;

@@ -34,60 +34,10 @@ TreeView::TreeView(const ValidatedGrid &grid)
     m_tile_value_off = c.root_tile_off_value;
     m_tile_count = m_s.root_tile_count;
     for (uint32_t t = 0; t < m_tile_count; ++t)
-        if (m_tile_of_key.emplace(tile_key(t), t).second)
+        if (m_tile_of_key.emplace(tile_key(t), t).second) {
             m_reached.push_back(t);
-}
-
-bool TreeView::tile_of(const int32_t ijk[3], uint32_t &t) const {
-    const auto it = m_tile_of_key.find(coord_to_key(ijk));
-    if (it == m_tile_of_key.end())
-        return false;
-    t = it->second;
-    return true;
-}
-
-uint64_t TreeView::node(int level, uint64_t n) const {
-    if (level == 0)
-        return m_grid.leaf_byte(n);
-    return m_s.node_begin[level] + n * m_level[level].node_size;
-}
-
-uint64_t TreeView::node_index(int level, uint64_t byte) const {
-    if (level == 0)
-        return m_grid.leaf_containing(byte);
-    return (byte - m_s.node_begin[level]) / m_level[level].node_size;
-}
-
-void TreeView::entry_origin(int level, const int32_t origin[3], uint32_t e, int32_t out[3]) const {
-    const NodeLevel &l = m_level[level];
-    const uint32_t mask = (1u << l.log2dim) - 1;
-    const uint32_t i = e >> (2 * l.log2dim), j = (e >> l.log2dim) & mask, k = e & mask;
-    out[0] = int32_t(uint32_t(origin[0]) + (i << l.log2entry));
-    out[1] = int32_t(uint32_t(origin[1]) + (j << l.log2entry));
-    out[2] = int32_t(uint32_t(origin[2]) + (k << l.log2entry));
-}
-
-uint32_t TreeView::entry_of(int level, const int32_t ijk[3]) const {
-    const NodeLevel &l = m_level[level];
-    const uint32_t span = (1u << (l.log2dim + l.log2entry)) - 1;
-    auto axis = [&](int a) { return (uint32_t(ijk[a]) & span) >> l.log2entry; };
-    return (axis(0) << (2 * l.log2dim)) | (axis(1) << l.log2dim) | axis(2);
-}
-
-TreeView::Found TreeView::find(int level, const int32_t ijk[3]) const {
-    uint32_t t;
-    if (!tile_of(ijk, t))
-        return { 0, m_background };
-    uint64_t node = tile_child(t);
-    if (node == 0)
-        return { 0, tile_value(t) };
-    for (int l = 2; l > level; --l) {
-        const uint32_t e = entry_of(l, ijk);
-        if (!child_bit(l, node, e))
-            return { 0, entry(l, node, e) };
-        node = child(l, node, e);
-    }
-    return { node, 0 };
+            m_reached_keys.push_back(tile_key(t));
+        }
 }
 
 } // namespace nanovdb_loader::detail

@@ -92,7 +92,22 @@ public:
     /// through it); it is left out.
     const std::vector<uint32_t> &tiles() const { return m_reached; }
     /// The tile lookups at ijk reach; false if none (the background)
-    bool tile_of(const int32_t ijk[3], uint32_t &t) const;
+    bool tile_of(const int32_t ijk[3], uint32_t &t) const {
+        const uint64_t key = coord_to_key(ijk);
+        if (m_reached_keys.size() <= SCAN_TILES) { // a few tiles: a scan beats a hash
+            for (size_t i = 0; i < m_reached_keys.size(); ++i)
+                if (m_reached_keys[i] == key) {
+                    t = m_reached[i];
+                    return true;
+                }
+            return false;
+        }
+        const auto it = m_tile_of_key.find(key);
+        if (it == m_tile_of_key.end())
+            return false;
+        t = it->second;
+        return true;
+    }
 
     /// Byte offset of the background value
     uint64_t background() const { return m_background; }
@@ -100,9 +115,17 @@ public:
     // ---- Nodes of levels 0 (leaf), 1 (lower), 2 (upper) ----
 
     /// Byte offset of node n of `level` (array order)
-    uint64_t node(int level, uint64_t n) const;
+    uint64_t node(int level, uint64_t n) const {
+        if (level == 0)
+            return m_grid.leaf_byte(n);
+        return m_s.node_begin[level] + n * m_level[level].node_size;
+    }
     /// Index (array order) of the node of `level` at byte offset `byte`
-    uint64_t node_index(int level, uint64_t byte) const;
+    uint64_t node_index(int level, uint64_t byte) const {
+        if (level == 0)
+            return m_grid.leaf_containing(byte);
+        return (byte - m_s.node_begin[level]) / m_level[level].node_size;
+    }
     uint64_t node_count(int level) const { return m_s.node_count[level]; }
 
     /// Table entry e of the internal node at byte `node`: its child bit, its
@@ -120,10 +143,22 @@ public:
 
     /// The first voxel of entry e of a node of `level` whose first voxel is
     /// `origin` (int32 wrap-around, as the lookups' coordinates wrap)
-    void entry_origin(int level, const int32_t origin[3], uint32_t e, int32_t out[3]) const;
+    void entry_origin(int level, const int32_t origin[3], uint32_t e, int32_t out[3]) const {
+        const NodeLevel &l = m_level[level];
+        const uint32_t mask = (1u << l.log2dim) - 1;
+        const uint32_t i = e >> (2 * l.log2dim), j = (e >> l.log2dim) & mask, k = e & mask;
+        out[0] = int32_t(uint32_t(origin[0]) + (i << l.log2entry));
+        out[1] = int32_t(uint32_t(origin[1]) + (j << l.log2entry));
+        out[2] = int32_t(uint32_t(origin[2]) + (k << l.log2entry));
+    }
     /// The entry of a node of `level` that holds ijk (PNanoVDB:
     /// pnanovdb_upper_coord_to_offset, _lower_, _leaf_)
-    uint32_t entry_of(int level, const int32_t ijk[3]) const;
+    uint32_t entry_of(int level, const int32_t ijk[3]) const {
+        const NodeLevel &l = m_level[level];
+        const uint32_t span = (1u << (l.log2dim + l.log2entry)) - 1;
+        auto axis = [&](int a) { return (uint32_t(ijk[a]) & span) >> l.log2entry; };
+        return (axis(0) << (2 * l.log2dim)) | (axis(1) << l.log2dim) | axis(2);
+    }
 
     /// What PNanoVDB's traversal of ijk reaches at `level`: the node of that
     /// level that contains ijk or, where there is none, the value that
@@ -132,7 +167,21 @@ public:
         uint64_t node = 0;  ///< byte offset of the node; 0: none
         uint64_t value = 0; ///< where there is none: byte offset of the value
     };
-    Found find(int level, const int32_t ijk[3]) const;
+    Found find(int level, const int32_t ijk[3]) const {
+        uint32_t t;
+        if (!tile_of(ijk, t))
+            return { 0, m_background };
+        uint64_t node = tile_child(t);
+        if (node == 0)
+            return { 0, tile_value(t) };
+        for (int l = 2; l > level; --l) {
+            const uint32_t e = entry_of(l, ijk);
+            if (!child_bit(l, node, e))
+                return { 0, entry(l, node, e) };
+            node = child(l, node, e);
+        }
+        return { node, 0 };
+    }
 
     /// Calls f(byte offset, level, index) for every value outside the leaves
     /// that validation counts, in its order (validation.h, "Which values"):
@@ -160,8 +209,13 @@ private:
     NodeLevel m_level[3];
     uint64_t m_root, m_background, m_tiles_begin, m_tile_size, m_tile_value_off;
     uint32_t m_tile_count;
+    /// Up to this many reached tiles, tile_of scans their keys (the
+    /// per-node majorants ask it for every neighbour: measured, a hash
+    /// lookup there made loading 1.5-2x slower)
+    static constexpr size_t SCAN_TILES = 32;
     std::unordered_map<uint64_t, uint32_t> m_tile_of_key; ///< key -> first tile
     std::vector<uint32_t> m_reached;
+    std::vector<uint64_t> m_reached_keys; ///< their keys
 };
 
 } // namespace nanovdb_loader::detail
