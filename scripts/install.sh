@@ -5,12 +5,17 @@
 # what changed. Idempotent: packages already present are not fetched again.
 #   --no-tests: leave out the test programs (the quickstart needs none), unless
 #               build/ already builds them
+#   --variants=V1;V2: build the plugins for these Mitsuba variants only (the
+#               quickstart: the one nanovdb-render uses), unless build/ is a
+#               test build; without it, all of the wheel's (pip install .)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD_TESTS=ON
+VARIANTS=""
 for arg in "$@"; do
   case "$arg" in
     --no-tests) BUILD_TESTS=OFF ;;
+    --variants=*) VARIANTS="${arg#--variants=}" ;;
     *) echo "install.sh: unknown option $arg" >&2; exit 2 ;;
   esac
 done
@@ -35,6 +40,9 @@ TEST_PIP_PACKAGES=(pytest==9.2.0 matplotlib==3.11.2)  # the tests and the benchm
 
 if grep -qs "^NVDB_BUILD_TESTS:BOOL=ON" build/CMakeCache.txt; then
   BUILD_TESTS=ON  # keep a test build a test build (no flip-flopping of build/)
+fi
+if [ "$BUILD_TESTS" = ON ]; then
+  VARIANTS=""     # the tests need every variant
 fi
 if [ "$BUILD_TESTS" = ON ]; then
   APT_PACKAGES+=("${TEST_APT_PACKAGES[@]}")
@@ -73,8 +81,9 @@ then
   "$PYTHON" -m pip install -q "${PIP_FLAGS[@]}" "${PIP_PACKAGES[@]}"
 fi
 
-echo "== pip install . (build in build/, tests ${BUILD_TESTS})"
+echo "== pip install . (build in build/, tests ${BUILD_TESTS}, variants: ${VARIANTS:-all})"
 # (not -q: pip prints the build's output when it fails; --config-settings, not -C: Debian 12's pip 23.0 lacks -C)
 "$PYTHON" -m pip install "${PIP_FLAGS[@]}" --no-build-isolation --no-deps \
   --config-settings build-dir=build \
-  --config-settings cmake.define.NVDB_BUILD_TESTS="$BUILD_TESTS" .
+  --config-settings cmake.define.NVDB_BUILD_TESTS="$BUILD_TESTS" \
+  --config-settings cmake.define.NVDB_VARIANTS="$VARIANTS" .
