@@ -72,10 +72,13 @@ inline constexpr const char *COUNTER_NAMES[(uint32_t) Counter::Count] = {
 /// floor() to int32 of index positions relative to a box minimum. Points
 /// absurdly far outside the box are clamped first (a float beyond the int32
 /// range has no int32 floor); they read the background either way.
+/// The largest float below 2^31: index positions are kept within +-this
+inline constexpr float INDEX_LIMIT = 2147483520.f;
+
 template <typename Float>
 DRJIT_INLINE dr::Array<dr::int32_array_t<Float>, 3> index_floor(const dr::Array<Float, 3> &rel) {
-    constexpr float limit = 2147483520.f; // largest float below 2^31
-    return dr::floor2int<dr::Array<dr::int32_array_t<Float>, 3>>(dr::clip(rel, -limit, limit));
+    return dr::floor2int<dr::Array<dr::int32_array_t<Float>, 3>>(
+        dr::clip(rel, -INDEX_LIMIT, INDEX_LIMIT));
 }
 
 template <typename Float> class GridSampler {

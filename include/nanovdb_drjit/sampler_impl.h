@@ -96,8 +96,8 @@ GridSampler<Float>::clamp_voxel(const Vector3i &voxel) const {
 template <typename Float>
 typename GridSampler<Float>::Vector3f
 GridSampler<Float>::clamp_position(const Vector3f &rel) const {
-    constexpr float limit = 2147483520.f; // index_floor's
-    return clamp ? dr::clip(rel, 0.f, Vector3f(last_voxel)) : dr::clip(rel, -limit, limit);
+    return clamp ? dr::clip(rel, 0.f, Vector3f(last_voxel))
+                 : dr::clip(rel, -INDEX_LIMIT, INDEX_LIMIT);
 }
 
 template <typename Float>

@@ -28,6 +28,8 @@
 
 #include <nanovdb_mitsuba/local_majorants.h>
 
+#include <tuple>
+
 NAMESPACE_BEGIN(mitsuba)
 
 /// The loops whose iterations are bounded, as bits of a `tripped` mask
@@ -70,6 +72,19 @@ template <typename Float, typename Spectrum> struct Tracking {
         maxt = dr::minimum(maxt, tmax);
         active &= hit && (mint < maxt);
         return { mint, maxt };
+    }
+
+    /// What both trackers start from: the range of `ray` in the medium (up
+    /// to tmax; lanes that miss it leave `active`) and the ray in the walk's
+    /// space, whose nodes are crossed whole below an optical depth of
+    /// coarse_depth
+    static std::tuple<Float, Float, WalkRay> span(const TrackedMedium &k, const Ray3f &ray,
+                                                  const Float &tmax, const Float &coarse_depth,
+                                                  Mask &active) {
+        auto [mint, maxt] = medium_range(k, ray, tmax, active);
+        WalkRay wr = k.volume->walk_ray(
+            ray, Float(k.scale > 0.f ? coarse_depth / k.scale : 0.f), active);
+        return { mint, maxt, wr };
     }
 
     /// A medium interaction at distance t along the ray, for evaluating the
@@ -216,9 +231,7 @@ template <typename Float, typename Spectrum> struct Tracking {
      */
     static Collision delta_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
                                     const Float &coarse_depth, Sampler *sampler, Mask active) {
-        auto [mint, maxt] = medium_range(k, ray, tmax, active);
-        WalkRay wr = k.volume->walk_ray(
-            ray, Float(k.scale > 0.f ? coarse_depth / k.scale : 0.f), active);
+        auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
         struct State {
             UnpolarizedSpectrum weight, sigma_s, sigma_t;
             Float majorant;
@@ -269,9 +282,7 @@ template <typename Float, typename Spectrum> struct Tracking {
     static std::pair<UnpolarizedSpectrum, UInt32>
     ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
                    const Float &coarse_depth, Sampler *sampler, Mask active) {
-        auto [mint, maxt] = medium_range(k, ray, tmax, active);
-        WalkRay wr = k.volume->walk_ray(
-            ray, Float(k.scale > 0.f ? coarse_depth / k.scale : 0.f), active);
+        auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
         UnpolarizedSpectrum tr(1.f);
         Flight f = sample_t_maj(
             k, wr, mint, maxt, sampler, tr, RatioLoop, active,

@@ -937,23 +937,8 @@ private:
             return;
         }
         ScalarBoundingBox3f bb;
-        {
-            for (int corner = 0; corner < 8; ++corner) {
-                double idx[3];
-                for (int k = 0; k < 3; ++k)
-                    idx[k] = (corner >> k & 1)
-                                 ? m_index_min_host[k] + m_resolution_host[k] - 0.5
-                                 : m_index_min_host[k] - 0.5;
-                ScalarPoint3f world;
-                for (int r = 0; r < 3; ++r) {
-                    double w = summary.map_vec[r];
-                    for (int c = 0; c < 3; ++c)
-                        w += summary.map_mat[3 * r + c] * idx[c];
-                    world[r] = (float) w;
-                }
-                bb.expand(world);
-            }
-        }
+        for (int corner = 0; corner < 8; ++corner)
+            bb.expand(box_corner_in_grid_world(summary, corner));
         if (!bb.valid() || dr::any(bb.extents() <= 0.f))
             Throw("nanovdbvolume: \"%s\": use_grid_bbox: the grid's box %s has no volume",
                   m_filename, bb);
@@ -992,20 +977,27 @@ private:
         // index box, mapped by the grid transform and then by to_world.
         ScalarAffineTransform4f to_world = m_to_local.inverse();
         m_bbox = ScalarBoundingBox3f();
-        for (int corner = 0; corner < 8; ++corner) {
-            double idx[3], world[3];
-            for (int k = 0; k < 3; ++k)
-                idx[k] = (corner >> k & 1)
-                             ? m_index_min_host[k] + m_resolution_host[k] - 0.5
-                             : m_index_min_host[k] - 0.5;
-            for (int r = 0; r < 3; ++r) {
-                world[r] = summary.map_vec[r];
-                for (int c = 0; c < 3; ++c)
-                    world[r] += summary.map_mat[3 * r + c] * idx[c];
-            }
-            m_bbox.expand(to_world * ScalarPoint3f((float) world[0], (float) world[1],
-                                                   (float) world[2]));
+        for (int corner = 0; corner < 8; ++corner)
+            m_bbox.expand(to_world * box_corner_in_grid_world(summary, corner));
+    }
+
+    /// Corner `corner` (bit k: the high side of axis k) of the cells of the
+    /// volume's index box, [min - 1/2, max + 1/2], through the grid's map
+    /// (in double, rounded once)
+    ScalarPoint3f box_corner_in_grid_world(const nanovdb_loader::GridSummary &summary,
+                                           int corner) const {
+        double idx[3];
+        for (int k = 0; k < 3; ++k)
+            idx[k] = (corner >> k & 1) ? m_index_min_host[k] + m_resolution_host[k] - 0.5
+                                       : m_index_min_host[k] - 0.5;
+        ScalarPoint3f world;
+        for (int r = 0; r < 3; ++r) {
+            double w = summary.map_vec[r];
+            for (int c = 0; c < 3; ++c)
+                w += summary.map_mat[3 * r + c] * idx[c];
+            world[r] = (float) w;
         }
+        return world;
     }
 
     /// World -> cell space of the majorant walk, composed in double and
