@@ -14,6 +14,9 @@
         = i + 2 j + 4 k): bit for bit, on positions inside the box, across
         leaf and node boundaries and outside the box;
       - a max() below the values clamps every lookup;
+      - stochastic_voxel: every voxel it picks lies in the filter's reach, and
+        the mean of nearest() over uniform offsets is the trilinear value, or
+        the cubic B-spline's (64 PNanoVDB reads), within 5 standard errors;
       - nearest3 / trilinear3 on Vec3f grids, each channel clamped to its max;
       - counters count the active lanes of every lookup, and inactive lanes
         return 0 and read nothing (a grid of PROT_NONE memory).
@@ -185,8 +188,8 @@ struct Prepared {
 };
 
 /// nanovdbvolume's prepare_grid call (`ring`: the plugin's !nearest && !clamp)
-const Prepared &prepared(const Source &src, bool ring) {
-    static std::map<std::pair<const Source *, bool>, std::unique_ptr<Prepared>> memo;
+const Prepared &prepared(const Source &src, int ring) {
+    static std::map<std::pair<const Source *, int>, std::unique_ptr<Prepared>> memo;
     std::unique_ptr<Prepared> &p = memo[{ &src, ring }];
     if (!p) {
         p = std::make_unique<Prepared>();
@@ -196,6 +199,7 @@ const Prepared &prepared(const Source &src, bool ring) {
         p->block.reset((uint32_t *) ptr);
         loader::PrepareOptions options;
         options.ring = ring;
+        options.majorant_ring = std::max(ring, 1);
         p->grid = std::make_unique<loader::PreparedGrid>(loader::prepare_grid(
             loader::GridSource::memory("test_sampler", src.label, src.words.data(), src.bytes),
             p->block.get(), p->backend_bytes, options));
@@ -208,10 +212,11 @@ const Prepared &prepared(const Source &src, bool ring) {
  * for a grid in memory: prepare_grid into a 64-byte aligned block (memoized:
  * a copy of the block), the plugin's hand-off (set_up_sampler,
  * src/volumes/sampler_setup.h), set_box. `clamp`: wrap_mode "clamp";
- * `ring`: the trilinear ring in max() (the plugin's !nearest && !clamp). No
+ * `ring`: the ring in max() (the plugin's: 0 for nearest or clamp, 1 for
+ * trilinear, 2 for tricubic). No
  * spectral rewrite (RGB variants).
  */
-template <typename Float> Loaded<Float> load(const Source &src, bool clamp, bool ring) {
+template <typename Float> Loaded<Float> load(const Source &src, bool clamp, int ring) {
     using HostBlock = typename ndr::GridSampler<Float>::HostBlock;
     Loaded<Float> l;
     ndr::GridSampler<Float> &s = l.sampler;
@@ -840,4 +845,128 @@ TEST_CASE_TEMPLATE("inactive lanes read nothing: a grid of PROT_NONE memory behi
                 dr::sync_thread(); // the mapping outlives every kernel that saw it
         }
     }
+}
+
+// ---------------------------------------------------------------------------
+//  Stochastic filters
+// ---------------------------------------------------------------------------
+
+namespace {
+
+/// The uniform cubic B-spline's weights at t in [0, 1): taps -1, 0, 1, 2
+std::array<double, 4> bspline(double t) {
+    const double s = 1.0 - t;
+    return { s * s * s / 6.0, (3 * t * t * t - 6 * t * t + 4) / 6.0,
+             (-3 * t * t * t + 3 * t * t + 3 * t + 1) / 6.0, t * t * t / 6.0 };
+}
+
+/// A position as clamp_position keeps it: in the box (clamp), or within
+/// the int32 range
+float kept_position(const Reference &ref, float rel, int k) {
+    constexpr float limit = 2147483520.f;
+    return ref.clamp ? std::min(std::max(rel, 0.f), float(ref.last[k]))
+                     : std::min(std::max(rel, -limit), limit);
+}
+
+/// The deterministic filters the stochastic ones estimate, from PNanoVDB's
+/// reads: trilinear (the reference's, unclamped to max: its corners are), or
+/// tricubic (64 taps with B-spline weights; taps clamped as nearest() does)
+double filtered(const Reference &ref, const Pos3 &rel_, bool tricubic, float max) {
+    if (!tricubic)
+        return ref.trilinear(rel_, max);
+    double w[3][4];
+    Coord3 base;
+    for (int k = 0; k < 3; ++k) {
+        const float rel = kept_position(ref, rel_[k], k);
+        base[k] = int32_t(std::floor(rel));
+        const std::array<double, 4> b = bspline(double(rel) - base[k]);
+        std::copy(b.begin(), b.end(), w[k]);
+    }
+    double sum = 0.0;
+    for (int i = 0; i < 4; ++i)
+        for (int j = 0; j < 4; ++j)
+            for (int l = 0; l < 4; ++l)
+                sum += w[0][i] * w[1][j] * w[2][l] *
+                       ref.nearest({ base[0] - 1 + i, base[1] - 1 + j, base[2] - 1 + l }, max);
+    return sum;
+}
+
+} // namespace
+
+TEST_CASE_TEMPLATE("stochastic filters: one voxel in reach, whose mean over the offsets is the "
+                   "trilinear (tricubic) value", Float, float, LLVMFloat) {
+    init_backend<Float>();
+    using Int32 = dr::int32_array_t<Float>;
+    using V3f = dr::Array<Float, 3>;
+    constexpr size_t POINTS = 48, DRAWS = 4096;
+    for (const char *label : { "noisy_cloud", "noisy_cloud (fp8)", "lower_tiles",
+                               "nonzero_background" })
+        for (bool tricubic : { false, true })
+            for (bool clamp : { false, true }) {
+                const Source &src = source(label);
+                Loaded<Float> l = load<Float>(src, clamp, clamp ? 0 : tricubic ? 2 : 1);
+                const Reference ref(l, clamp);
+                const Queries q = make_queries(src, l);
+                nvdb_testdata::Rng rng = nvdb_testdata::Rng::counter(77 + tricubic + 2 * clamp);
+                size_t out_of_reach = 0, off = 0, checked = 0;
+                double worst_z = 0.0;
+                for (size_t i = 0; i < POINTS; ++i) {
+                    const Pos3 &p = q.positions[(i * 7919) % q.positions.size()];
+                    std::vector<float> u[3];
+                    for (int k = 0; k < 3; ++k)
+                        for (size_t d = 0; d < DRAWS; ++d)
+                            u[k].push_back(float(rng.uniform()));
+                    // The voxels picked and their values
+                    std::vector<int32_t> voxel[3];
+                    std::vector<float> value;
+                    if constexpr (!dr::is_jit_v<Float>) {
+                        for (size_t d = 0; d < DRAWS; ++d) {
+                            const dr::Array<int32_t, 3> v = l.sampler.stochastic_voxel(
+                                V3f(p[0], p[1], p[2]), V3f(u[0][d], u[1][d], u[2][d]), tricubic);
+                            for (int k = 0; k < 3; ++k)
+                                voxel[k].push_back(v[k]);
+                            value.push_back(l.sampler.nearest(v, true));
+                        }
+                    } else {
+                        V3f rel(dr::full<Float>(p[0], DRAWS), dr::full<Float>(p[1], DRAWS),
+                                dr::full<Float>(p[2], DRAWS)),
+                            uu(dr::load<Float>(u[0].data(), DRAWS), dr::load<Float>(u[1].data(), DRAWS),
+                               dr::load<Float>(u[2].data(), DRAWS));
+                        const dr::Array<Int32, 3> v = l.sampler.stochastic_voxel(rel, uu, tricubic);
+                        for (int k = 0; k < 3; ++k)
+                            voxel[k] = to_host(v[k], DRAWS);
+                        value = to_host(l.sampler.nearest(v, true), DRAWS);
+                    }
+                    // Reach: [b, b + 1] (trilinear), [b - 1, b + 2] (tricubic) per axis
+                    for (size_t d = 0; d < DRAWS; ++d)
+                        for (int k = 0; k < 3; ++k) {
+                            const float rel = kept_position(ref, p[k], k);
+                            const int32_t b = int32_t(std::floor(rel)), lo = tricubic ? b - 1 : b,
+                                          hi = tricubic ? b + 2 : b + 1;
+                            out_of_reach += voxel[k][d] < lo || voxel[k][d] > hi;
+                        }
+                    // The mean against the deterministic filter
+                    double mean = 0.0, sq = 0.0;
+                    for (float x : value) {
+                        mean += x;
+                        sq += double(x) * x;
+                    }
+                    mean /= DRAWS;
+                    const double var = std::max(sq / DRAWS - mean * mean, 0.0),
+                                 se = std::sqrt(var / DRAWS),
+                                 expected = filtered(ref, p, tricubic, l.max),
+                                 err = std::abs(mean - expected),
+                                 tol = 5.0 * se + 1e-5 * std::max(1.0, std::abs(expected));
+                    if (se > 0.0)
+                        worst_z = std::max(worst_z, err / se);
+                    off += err > tol;
+                    ++checked;
+                }
+                MESSAGE(backend_name<Float>(), " ", std::string(tricubic ? "tricubic" : "trilinear"),
+                        std::string(clamp ? " (clamp) " : " "), std::string(label), ": ", checked,
+                        " points x ", DRAWS,
+                        " draws, worst |z| = ", worst_z);
+                CHECK(out_of_reach == 0);
+                CHECK(off == 0);
+            }
 }

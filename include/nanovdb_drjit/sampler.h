@@ -11,6 +11,11 @@
                            position rel (relative to the box minimum; values
                            sit at integers), with the weights and the order of
                            Dr.Jit's texture (gridvolume)
+      stochastic_voxel(rel, u)
+                           stochastic filtering (Pharr et al. 2024): the one
+                           voxel to read so that, over u uniform in [0, 1)^3,
+                           the expected value is the trilinear (or the cubic
+                           B-spline) filter's at rel; read it with nearest()
       nearest3, trilinear3 the same for Vec3f grids
       stencil(rel)         the 8 corners of a trilinear lookup (their value
                            addresses, levels, coordinates and weights), for
@@ -81,6 +86,33 @@ DRJIT_INLINE dr::Array<dr::int32_array_t<Float>, 3> index_floor(const dr::Array<
         dr::clip(rel, -INDEX_LIMIT, INDEX_LIMIT));
 }
 
+/// Three numbers in [0, 1) from the bits of an index position and a seed:
+/// the offsets of a stochastic filter where no sampler provides them
+/// (Volume::eval has none). PCG3D (Jarzynski and Olano, "Hash Functions for
+/// GPU Rendering", JCGT 2020): every output bit depends on every input bit,
+/// so positions a rounding apart get unrelated offsets, and the same
+/// position always the same ones.
+template <typename Float>
+DRJIT_INLINE dr::Array<Float, 3> hash_offsets(const dr::Array<Float, 3> &rel, uint32_t seed) {
+    using UInt32 = dr::uint32_array_t<Float>;
+    dr::Array<UInt32, 3> v;
+    for (int k = 0; k < 3; ++k)
+        v[k] = dr::reinterpret_array<UInt32>(rel[k]) * 1664525u + (1013904223u ^ (seed * (k + 1)));
+    for (int round = 0; round < 2; ++round) {
+        v[0] += v[1] * v[2];
+        v[1] += v[2] * v[0];
+        v[2] += v[0] * v[1];
+        if (round == 0)
+            for (int k = 0; k < 3; ++k)
+                v[k] ^= dr::sr<16>(v[k]);
+    }
+    // 24 bits each: exactly representable, strictly below 1
+    dr::Array<Float, 3> u;
+    for (int k = 0; k < 3; ++k)
+        u[k] = Float(dr::sr<8>(v[k])) * 0x1p-24f;
+    return u;
+}
+
 template <typename Float> class GridSampler {
 public:
     using UInt32 = dr::uint32_array_t<Float>;
@@ -140,6 +172,16 @@ public:
     /// Trilinear interpolation at the index position `rel` (relative to the
     /// box minimum, values at integers)
     Float trilinear(const Vector3f &rel, const Mask &active) const;
+
+    /// The voxel (relative to the box minimum) a stochastic filter reads at
+    /// the index position `rel` (as trilinear()'s) for offsets u in
+    /// [0, 1)^3: per axis, with b = floor(rel) and t = rel - b,
+    ///   trilinear: b + 1 with probability t, else b;
+    ///   tricubic:  b - 1 + k with probability B_k(t), the uniform cubic
+    ///              B-spline's weights (k = 0..3; a reach of 1.5 voxels)
+    /// so that the expected nearest() value is the filter's (B-spline
+    /// weights are non-negative and sum to 1: no value exceeds max())
+    Vector3i stochastic_voxel(const Vector3f &rel, const Vector3f &u, bool tricubic) const;
 
     /// Vec3f grids: each channel clamped to its max
     Vector3f nearest3(const Vector3i &voxel, const Mask &active) const;

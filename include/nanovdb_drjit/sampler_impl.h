@@ -167,6 +167,27 @@ Float GridSampler<Float>::trilinear(const Vector3f &rel_, const Mask &active) co
 }
 
 template <typename Float>
+typename GridSampler<Float>::Vector3i
+GridSampler<Float>::stochastic_voxel(const Vector3f &rel_, const Vector3f &u,
+                                     bool tricubic) const {
+    Vector3f rel = clamp_position(rel_);
+    Vector3i base = dr::floor2int<Vector3i>(rel); // (rel in the int32 range already)
+    Vector3f t = rel - Vector3f(base);
+    if (!tricubic) // u >= 1 - t: probability t
+        return dr::select(u + t >= 1.f, base + Vector3i(1), base);
+    // The B-spline's weights, accumulated: tap k is chosen where u lies in
+    // [c_{k-1}, c_k), c_3 = 1
+    Vector3f s = 1.f - t, t2 = t * t, t3 = t2 * t;
+    Vector3f c0 = s * s * s * (1.f / 6.f),
+             c1 = c0 + (3.f * t3 - 6.f * t2 + 4.f) * (1.f / 6.f),
+             c2 = 1.f - t3 * (1.f / 6.f);
+    const Vector3i one(1), zero(0);
+    Vector3i k = dr::select(u >= c0, one, zero) + dr::select(u >= c1, one, zero) +
+                 dr::select(u >= c2, one, zero) - one;
+    return base + k;
+}
+
+template <typename Float>
 AddressAndLevel<typename GridSampler<Float>::UInt32>
 GridSampler<Float>::address3(const Vector3i &voxel, const Mask &active) const {
     constexpr uint32_t T = layout::GRID_TYPE_VEC3F;

@@ -67,9 +67,12 @@ struct PrepareOptions {
     InvalidValues invalid_values = InvalidValues::Error;
     /// The volume's index box (inclusive); none: the grid's active box
     std::optional<IndexBox> volume_box;
-    /// Lookups reach the one-voxel ring around the box (trilinear, not
-    /// clamped to the box): lookup_box()
-    bool ring = false;
+    /// Lookups reach this many voxels around the box (0: nearest, or
+    /// clamped to the box; 1: trilinear; 2: tricubic): lookup_box()
+    int ring = 0;
+    /// The ring of the node majorants: the voxels a lookup at a point of a
+    /// node may read beyond it (1, 2 for tricubic): node_majorants()
+    int majorant_ring = 1;
     /// Vec3f grids of a spectral variant: colours into coefficients (others
     /// ignore it)
     std::optional<SpectralConversion> spectral;

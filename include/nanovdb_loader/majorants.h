@@ -27,15 +27,16 @@ struct IndexBox {
 };
 
 /// The coordinates a volume's lookups read at points of its bounding box:
-/// the active box (the voxel at the origin for an empty grid), for trilinear
-/// grown by the one-voxel ring that stencils reach. An axis whose ring would
-/// leave the int32 range spans all of it (stencil coordinates wrap there).
-IndexBox lookup_box(const GridSummary &summary, bool trilinear);
+/// the active box (the voxel at the origin for an empty grid), grown by the
+/// ring of `ring` voxels that the filter's stencils reach (0: nearest, 1:
+/// trilinear, 2: tricubic; `true` is 1). An axis whose ring would leave the
+/// int32 range spans all of it (stencil coordinates wrap there).
+IndexBox lookup_box(const GridSummary &summary, int ring);
 
 /// The same for a volume that spans `volume_box` (not necessarily the
-/// active box): grown by the ring where `ring` (trilinear lookups that read
-/// the tree beyond the box; none where they clamp to it)
-IndexBox lookup_box(IndexBox volume_box, bool ring);
+/// active box): grown by `ring` voxels (filters that read the tree beyond
+/// the box; 0 where they clamp to it)
+IndexBox lookup_box(IndexBox volume_box, int ring);
 
 /// The largest value (NaN skipped) a lookup at any integer coordinate of
 /// `box` returns. O(nodes the box touches), plus 512 values for each leaf
@@ -54,7 +55,9 @@ std::array<float, 3> max_in_box_per_channel(const ValidatedGrid &grid, const Ind
  * a point of a region reads the region's voxels and, where the point lies
  * near its border (trilinear stencils, or a rounding error of half a voxel),
  * the voxels of the one-voxel ring around it; so every bound covers the
- * region grown by one voxel on every side ("ringed"). All are exact maxima
+ * region grown by one voxel on every side ("ringed"). Filters that reach
+ * further (tricubic: 1.5 voxels) ask for a wider ring: `ring` voxels, and
+ * every "+ 1" below becomes "+ ring". All are exact maxima
  * (NaN skipped) over the sets below; `values` follows `layout`
  * (nanovdb_drjit/majorant_table.h):
  *
@@ -89,7 +92,7 @@ struct NodeMajorants {
     uint64_t bytes() const { return uint64_t(values.size()) * sizeof(float); }
 };
 
-NodeMajorants node_majorants(const ValidatedGrid &grid);
+NodeMajorants node_majorants(const ValidatedGrid &grid, int ring = 1);
 
 /**
  * The mean over the voxels of `box` of the bound of the majorant walk's

@@ -54,6 +54,20 @@ public:
     /// a tracking loop can meet along a ray (the integrator's loop bounds)
     virtual ScalarFloat majorant_bound() const = 0;
 
+    /// Whether the volume's lookups use a stochastic filter (filter_type
+    /// stochastic_*): they then take random offsets (set_lookup_offsets)
+    virtual bool stochastic_lookups() const = 0;
+
+    /**
+     * Until the next call on this thread, the volume's stochastic lookups
+     * use the offsets `u` (in [0, 1)^3, one per lane; nullptr: a hash of
+     * the position, as eval() does on its own): the integrator draws them
+     * from its sampler and sets them around its calls that evaluate the
+     * medium (Volume::eval has no sampler argument). Other volumes of the
+     * medium (albedo) keep their hash.
+     */
+    virtual void set_lookup_offsets(const Vector3f *u) const = 0;
+
     /**
      * The ray in index space. `thin_depth` (per unit of eval_1) sets which
      * nodes are crossed whole: those whose bound M makes the optical depth

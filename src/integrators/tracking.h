@@ -48,6 +48,7 @@ template <typename Float, typename Spectrum> struct Tracking {
         const Majorants *volume;
         ScalarFloat scale;        ///< the medium's density scale
         ScalarFloat max_majorant; ///< scale x the largest segment bound
+        bool stochastic;          ///< its lookups take random offsets (stochastic filters)
     };
 
     /// A flight through a tracked medium: the walk, the position t along the
@@ -101,6 +102,25 @@ template <typename Float, typename Spectrum> struct Tracking {
         mei.medium = MediumPtr(k.medium);
         mei.mint = mint;
         return mei;
+    }
+
+    /// The medium's coefficients (sigma_s, sigma_n, sigma_t) at distance t
+    /// along the ray. A volume with a stochastic filter reads one voxel drawn
+    /// with offsets from the sampler (three numbers per tentative collision;
+    /// none otherwise), given to it for this call only
+    static auto coefficients(const TrackedMedium &k, const Ray3f &ray, const Float &t,
+                             const Float &mint, Sampler *sampler, const Mask &hit) {
+        MediumInteraction3f mei = interaction_at(k, ray, t, mint);
+        if (!k.stochastic)
+            return k.medium->get_scattering_coefficients(mei, hit);
+        Point2f u2 = sampler->next_2d(hit);
+        Vector3f u(u2.x(), u2.y(), sampler->next_1d(hit));
+        struct Scope { // (cleared on every way out)
+            const Majorants *v;
+            ~Scope() { v->set_lookup_offsets(nullptr); }
+        } scope{ k.volume };
+        k.volume->set_lookup_offsets(&u);
+        return k.medium->get_scattering_coefficients(mei, hit);
     }
 
     /// A float bound as an iteration count (NaN, infinity and >= 2^31: 2^31)
@@ -244,8 +264,7 @@ template <typename Float, typename Spectrum> struct Tracking {
             [k, ray, mint](State &s, const Float &t, const Float &mu, Sampler *sampler_,
                            const Mask &hit) {
                 Float xi = sampler_->next_1d(hit);
-                auto [sigma_s, sigma_n, sigma_t] =
-                    k.medium->get_scattering_coefficients(interaction_at(k, ray, t, mint), hit);
+                auto [sigma_s, sigma_n, sigma_t] = coefficients(k, ray, t, mint, sampler_, hit);
                 DRJIT_MARK_USED(sigma_n);
                 Float p_real = dr::mean(sigma_t) / mu;
                 Mask real = hit && (xi < p_real), null = hit && !real;
@@ -286,10 +305,9 @@ template <typename Float, typename Spectrum> struct Tracking {
         UnpolarizedSpectrum tr(1.f);
         Flight f = sample_t_maj(
             k, wr, mint, maxt, sampler, tr, RatioLoop, active,
-            [k, ray, mint](UnpolarizedSpectrum &tr_, const Float &t, const Float &mu, Sampler *,
-                           const Mask &hit) {
-                auto [sigma_s, sigma_n, sigma_t] =
-                    k.medium->get_scattering_coefficients(interaction_at(k, ray, t, mint), hit);
+            [k, ray, mint](UnpolarizedSpectrum &tr_, const Float &t, const Float &mu,
+                           Sampler *sampler_, const Mask &hit) {
+                auto [sigma_s, sigma_n, sigma_t] = coefficients(k, ray, t, mint, sampler_, hit);
                 DRJIT_MARK_USED(sigma_s);
                 DRJIT_MARK_USED(sigma_n);
                 dr::masked(tr_, hit) *= (mu - sigma_t) / mu;

@@ -836,7 +836,8 @@ private:
                     v->local_majorant_ratio(), m_max_ratio);
                 continue;
             }
-            tracked.push_back({ m, v, p.scale, p.scale * v->majorant_bound() });
+            tracked.push_back({ m, v, p.scale, p.scale * v->majorant_bound(),
+                                v->stochastic_lookups() });
         }
         Log(Debug, "volpathlocal: %zu of %zu media tracked through local majorants",
             tracked.size(), media.size());

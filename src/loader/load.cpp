@@ -58,7 +58,7 @@ PreparedGrid prepare_grid(const GridSource &source, void *dst, uint64_t dst_byte
     p.max = max_in_box(p.grid, p.box);
     p.max3 = vec3 ? max_in_box_per_channel(p.grid, p.box) : std::array<float, 3>{ p.max, p.max, p.max };
     p.grid_max = p.grid.values().max;
-    p.majorants = node_majorants(p.grid);
+    p.majorants = node_majorants(p.grid, options.majorant_ring);
     p.mean_bound = mean_bound(p.grid, p.majorants, p.box, p.max);
     if (vec3 && options.spectral) {
         // Last: the bounds above are of the colours. A converted value is

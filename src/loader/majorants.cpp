@@ -152,25 +152,25 @@ private:
 
 } // namespace
 
-IndexBox lookup_box(const GridSummary &s, bool trilinear) {
+IndexBox lookup_box(const GridSummary &s, int ring) {
     IndexBox box;
     for (int a = 0; a < 3; ++a) {
         box.lo[a] = s.empty ? 0 : s.bbox_min[a];
         box.hi[a] = s.empty ? 0 : s.bbox_max[a];
     }
-    return lookup_box(box, trilinear);
+    return lookup_box(box, ring);
 }
 
-IndexBox lookup_box(IndexBox box, bool ring) {
+IndexBox lookup_box(IndexBox box, int ring) {
     for (int a = 0; a < 3; ++a) {
-        if (!ring)
+        if (ring <= 0)
             continue;
-        if (box.lo[a] == INT32_MIN || box.hi[a] == INT32_MAX) {
+        if (int64_t(box.lo[a]) - ring < INT32_MIN || int64_t(box.hi[a]) + ring > INT32_MAX) {
             box.lo[a] = INT32_MIN; // the ring wraps around: all of the axis
             box.hi[a] = INT32_MAX;
         } else {
-            --box.lo[a];
-            ++box.hi[a];
+            box.lo[a] -= ring;
+            box.hi[a] += ring;
         }
     }
     return box;

@@ -59,8 +59,9 @@ struct Cover {
 
 class Builder {
 public:
-    Builder(const ValidatedGrid &grid)
-        : m_grid(grid), m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type) {
+    Builder(const ValidatedGrid &grid, int ring)
+        : m_grid(grid), m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type),
+          m_ring(uint32_t(std::clamp(ring, 1, 8))) {
         const GridSummary &s = grid.summary();
         const layout::GridTypeConstants &c = m_codec.constants();
         m_out.layout = nanovdb_drjit::MajorantTableLayout::make(
@@ -157,10 +158,13 @@ private:
                                  : c.level == 1 ? layout::LOWER_LOG2_DIM
                                                 : layout::UPPER_LOG2_DIM,
                        last = (1u << log2dim) - 1;
+        // A layer is m_ring voxels thick: that many leaf voxels, or the
+        // first or last entry of an internal node (8 or more voxels wide)
+        const uint32_t thick = c.level == 0 ? m_ring : 1;
         uint32_t lo[3], hi[3];
         for (int a = 0; a < 3; ++a) {
-            lo[a] = sel[a] == HIGH ? last : 0;
-            hi[a] = sel[a] == LOW ? 0 : last;
+            lo[a] = sel[a] == HIGH ? last + 1 - thick : 0;
+            hi[a] = sel[a] == LOW ? thick - 1 : last;
         }
         for (uint32_t i = lo[0]; i <= hi[0]; ++i)
             for (uint32_t j = lo[1]; j <= hi[1]; ++j)
@@ -313,6 +317,7 @@ private:
     const TreeView m_view;
     const uint8_t *m_buf;
     const detail::ValueCodec m_codec;
+    const uint32_t m_ring; ///< the ring's thickness in voxels (1-8)
     float m_background = 0.f;
     std::vector<float> m_lower_min, m_lower_max, m_upper_min, m_upper_max; ///< no ring
     NodeMajorants m_out;
@@ -320,6 +325,6 @@ private:
 
 } // namespace
 
-NodeMajorants node_majorants(const ValidatedGrid &grid) { return Builder(grid).run(); }
+NodeMajorants node_majorants(const ValidatedGrid &grid, int ring) { return Builder(grid, ring).run(); }
 
 } // namespace nanovdb_loader

@@ -79,7 +79,20 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
    - |string|
    - ``trilinear``: interpolate between voxel centres, as NanoVDB's own
      trilinear sampler does; ``nearest``: the value of the voxel that
-     contains the point. (Default: ``trilinear``)
+     contains the point; ``stochastic_trilinear``: one voxel read, drawn at
+     random so that its expected value is the trilinear one (Pharr et al.,
+     "Filtering After Shading with Stochastic Texture Filtering", 2024);
+     ``stochastic_tricubic``: the same for the cubic B-spline, a smoother
+     filter that reaches 1.5 voxels. Stochastic filters keep every tracking
+     estimator unbiased for the filtered medium (its density enters them
+     linearly), at one read instead of 8; they add noise per sample.
+     ``volpathlocal`` draws their offsets from its sampler; other
+     integrators call ``eval()``, which has no sampler, so the offsets come
+     from a hash of the lookup position and a seed per volume: the same
+     point always reads the same voxel (a fixed, finely dithered medium
+     whose average over any sub-voxel region is the filtered one), and two
+     volumes of one medium (density, albedo) are dithered independently.
+     (Default: ``trilinear``)
 
  * - use_grid_transform
    - |bool|
@@ -211,6 +224,11 @@ and lists the supported ones.
         }
 */
 
+/// filter_type: what a lookup reads
+enum class Filter : uint32_t { Nearest, Trilinear, StochasticTrilinear, StochasticTricubic };
+constexpr const char *FILTER_NAMES[] = { "nearest", "trilinear", "stochastic_trilinear",
+                                         "stochastic_tricubic" };
+
 template <typename Float, typename Spectrum>
 class NanoVDBVolume final : public Volume<Float, Spectrum>,
                             public LocalMajorants<Float, Spectrum> {
@@ -251,11 +269,17 @@ public:
         }
 
         std::string_view filter = props.get<std::string_view>("filter_type", "trilinear");
-        if (filter == "nearest")
-            m_nearest = true;
-        else if (filter != "trilinear")
+        for (size_t f = 0; f < std::size(FILTER_NAMES); ++f)
+            if (filter == FILTER_NAMES[f])
+                m_filter = Filter(f);
+        if (filter != FILTER_NAMES[(size_t) m_filter])
             Throw("nanovdbvolume: \"%s\": invalid filter_type \"%s\", must be one of: "
-                  "\"nearest\" or \"trilinear\"", m_filename, filter);
+                  "\"nearest\", \"trilinear\", \"stochastic_trilinear\" or "
+                  "\"stochastic_tricubic\"", m_filename, filter);
+        // Stochastic filters' offsets in eval(): a hash of the position and
+        // of this seed, which differs between the volumes of one medium
+        m_seed = (uint32_t) std::hash<std::string>()(m_filename + '\n' +
+                                                      props.get<std::string>("grid", ""));
 
         std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
         if (invalid == "clamp")
@@ -529,7 +553,7 @@ public:
             << "  grid_class = " << nanovdb_loader::grid_class_name(m_facts.grid_class) << ","
             << std::endl
             << "  channels = " << m_channel_count << "," << std::endl
-            << "  filter_type = " << (m_nearest ? "nearest" : "trilinear") << "," << std::endl
+            << "  filter_type = " << FILTER_NAMES[(size_t) m_filter] << "," << std::endl
             << "  wrap_mode = " << (m_clamp ? "clamp" : "tree") << "," << std::endl
             << "  use_grid_transform = " << m_use_grid_transform << "," << std::endl
             << "  to_local = " << string::indent(m_to_local, 13) << "," << std::endl
@@ -575,6 +599,12 @@ public:
     }
 
     ScalarFloat majorant_bound() const override { return max(); }
+
+    bool stochastic_lookups() const override {
+        return m_filter == Filter::StochasticTrilinear || m_filter == Filter::StochasticTricubic;
+    }
+
+    void set_lookup_offsets(const Vector3f *u) const override { s_offsets = { this, u }; }
 
     WalkRay walk_ray(const Ray3f &ray, const Float &thin_depth, Mask /* active */) const override {
         WalkRay r;
@@ -643,18 +673,32 @@ private:
             Point3f p = m_to_local * it.p;
             // Same arithmetic as Dr.Jit's texture (gridvolume), so both plugins
             // pick the same voxels and weights
-            if (m_nearest)
+            if (m_filter == Filter::Nearest)
                 out.voxel = nanovdb_drjit::index_floor(Array3f(p * m_resolution));
             else
                 out.rel = dr::fmadd(p, m_resolution, -.5f);
         } else {
             Point4f p = m_index_from_world * Point4f(it.p.x(), it.p.y(), it.p.z(), 1.f);
             out.rel = Vector3f(p.x(), p.y(), p.z());
-            if (m_nearest)
+            if (m_filter == Filter::Nearest)
                 out.voxel = nanovdb_drjit::index_floor(Array3f(out.rel + .5f));
         }
+        if (stochastic_lookups())
+            out.voxel = m_sampler.stochastic_voxel(Array3f(out.rel), Array3f(offsets(out.rel)),
+                                                   m_filter == Filter::StochasticTricubic);
         return out;
     }
+
+    /// A stochastic filter's offsets at `rel`: the integrator's (from its
+    /// sampler, set_lookup_offsets) or a hash of the position
+    Vector3f offsets(const Vector3f &rel) const {
+        if (s_offsets.owner == this && s_offsets.u)
+            return *s_offsets.u;
+        return Vector3f(nanovdb_drjit::hash_offsets(Array3f(rel), m_seed));
+    }
+
+    /// Whether `voxel` is what a lookup reads (nearest and stochastic filters)
+    bool one_voxel() const { return m_filter != Filter::Trilinear; }
 
     /// Value at the local point of `it` (scalar grids). Inside the volume's
     /// box every value is at most max(); points outside it (use_grid_transform
@@ -664,16 +708,16 @@ private:
     Float lookup(const Interaction3f &it, Mask active) const {
         MI_MASK_ARGUMENT(active);
         IndexPosition pos = index_position(it);
-        return m_nearest ? m_sampler.nearest(pos.voxel, active)
-                         : m_sampler.trilinear(Array3f(pos.rel), active);
+        return one_voxel() ? m_sampler.nearest(pos.voxel, active)
+                           : m_sampler.trilinear(Array3f(pos.rel), active);
     }
 
     /// The 3-vector at the local point of `it` (a Vec3f grid)
     Vector3f lookup3(const Sampler &s, const Interaction3f &it, Mask active) const {
         MI_MASK_ARGUMENT(active);
         IndexPosition pos = index_position(it);
-        return Vector3f(m_nearest ? s.nearest3(pos.voxel, active)
-                                  : s.trilinear3(Array3f(pos.rel), active));
+        return Vector3f(one_voxel() ? s.nearest3(pos.voxel, active)
+                                    : s.trilinear3(Array3f(pos.rel), active));
     }
 
     /// eval() of a Vec3f grid in spectral variants, as gridvolume's
@@ -689,7 +733,7 @@ private:
             return std::make_pair(srgb_model_eval<UnpolarizedSpectrum>(coeff, it.wavelengths),
                                   m_sampler.value_scale(address, level, c, active));
         };
-        if (m_nearest) {
+        if (one_voxel()) {
             ndr::AddressAndLevel<UInt32> al = m_sampler.address3(pos.voxel, active);
             auto [spectrum, scale] = corner_value(al.address, al.level,
                                                   m_sampler.absolute(pos.voxel));
@@ -844,7 +888,11 @@ private:
         // max(): what lookups inside the volume can return (its box, and the
         // ring trilinear stencils reach unless they clamp to the box), not
         // every value the grid stores; the sampler clamps lookups to it
-        options.ring = !m_nearest && !m_clamp;
+        // (a tricubic stencil reaches 1.5 voxels: a ring of 2)
+        const int reach = m_filter == Filter::Nearest ? 0
+                          : m_filter == Filter::StochasticTricubic ? 2 : 1;
+        options.ring = m_clamp ? 0 : reach;
+        options.majorant_ring = std::max(reach, 1);
         // Spectral variants turn colours into sRGB-model coefficients and a
         // scale, as gridvolume does (unless raw; never for 6 channels): a
         // spectrum is scale * S(coefficients), S in [0, 1], scale = 2 max(rgb)
@@ -1041,7 +1089,8 @@ private:
     ScalarFloat m_background_host = 0.f;
     int32_t m_cell_base_host[3] = { 0, 0, 0 };     // the walk's base (multiple of 4096)
     dr::Matrix<double, 4> m_index_from_world_host; // use_grid_transform, in double
-    bool m_nearest = false;
+    Filter m_filter = Filter::Trilinear;
+    uint32_t m_seed = 0;               // stochastic filters' hash seed (eval())
     bool m_clamp = false;              // wrap_mode "clamp": positions clamped to the box
     bool m_use_grid_transform = false;
     nanovdb_loader::InvalidValues m_invalid_values = nanovdb_loader::InvalidValues::Error;
@@ -1055,6 +1104,13 @@ private:
         double grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0;
         double counters[(uint32_t) nanovdb_drjit::Counter::Count] = {};
     } m_trav;
+
+    /// The offsets the integrator gave this thread's lookups (set_lookup_offsets)
+    struct Offsets {
+        const NanoVDBVolume *owner;
+        const Vector3f *u;
+    };
+    static inline thread_local Offsets s_offsets = { nullptr, nullptr };
 
     MI_TRAVERSE_CB(Base, m_sampler, m_second, m_resolution, m_index_from_world,
                    m_cell_from_world)
