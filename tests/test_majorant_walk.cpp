@@ -14,6 +14,10 @@
       - the LLVM walk equals the scalar walk bit for bit, step for step, and
         the faithful readers (PNanoVDB's root search, 64-bit child offsets)
         walk exactly as the plan's fast readers;
+      - majorants with a ring of 2 voxels (the plugin's, for the stochastic
+        tricubic filter) cover the 64 taps of a cubic B-spline stencil at
+        every point, and the default ring of 1 does not (some tap exceeds it
+        on the noisy grids: the wider ring is needed);
       - the same on Fp8, FpN, Half and Vec3f versions of four grids
         (tests/typed_grids.h), read by PNanoVDB's per-type readers (the
         hand walk, written against NanoVDB's float node structs, is left out
@@ -197,8 +201,10 @@ std::vector<Segment> walk_scalar(const Buffer &buf, const Root &root,
     });
 }
 
-ndr::MajorantGrid<uint32_t> scalar_majorants(const WalkGrid &g) {
-    return ndr::MajorantGrid<uint32_t>::make(g.majorants.layout, g.majorants.values, 1.f,
+ndr::MajorantGrid<uint32_t> scalar_majorants(const WalkGrid &g,
+                                             const loader::NodeMajorants *other = nullptr) {
+    const loader::NodeMajorants &m = other ? *other : g.majorants;
+    return ndr::MajorantGrid<uint32_t>::make(m.layout, m.values, 1.f,
                                              std::numeric_limits<float>::infinity(), g.base);
 }
 
@@ -440,4 +446,50 @@ TEST_CASE("majorant walk: LLVM equals scalar step for step") {
             CHECK(mismatches == 0);
         }
     }
+}
+
+TEST_CASE("majorant walk: a ring of 2 bounds the tricubic reach, a ring of 1 does not") {
+    size_t exceeded_by_ring1 = 0;
+    for (const WalkGrid &g : walk_grids()) {
+        if (g.grid_type != 1)
+            continue; // (float grids: the ring is built the same for every type)
+        loader::ValidatedGrid v = loader::validate_grid(g.name, g.words.data(), g.handle.size());
+        const loader::NodeMajorants ring2 = loader::node_majorants(v, 2);
+        ndr::Reader<uint32_t> reader = ndr::Reader<uint32_t>::from_plan(g.plan);
+        const Reference ref(g);
+        std::mt19937_64 rng(23);
+        std::uniform_real_distribution<double> u(0.0, 1.0);
+        size_t points = 0, exceed[2] = { 0, 0 };
+        for (int ring : { 1, 2 }) {
+            const ndr::MajorantGrid<uint32_t> mg = scalar_majorants(g, ring == 2 ? &ring2 : nullptr);
+            for (const Ray &r : random_rays(g, 3, false)) {
+                std::vector<Segment> segs = reader.apply(
+                    g.words.data(), [&](const auto &buf, const auto &root) {
+                        return walk_scalar(buf, root, mg, r, g.grid_type);
+                    });
+                for (size_t k = 0; k < 40 && !segs.empty(); ++k) {
+                    const Segment &sg = segs[rng() % segs.size()];
+                    const double t = sg.t0 + u(rng) * (double(sg.t1) - double(sg.t0));
+                    // The 4^3 taps of a B-spline lookup at q (cell space:
+                    // values at voxel centres), b = floor(q - 1/2)
+                    int64_t b[3];
+                    for (int a = 0; a < 3; ++a)
+                        b[a] = int64_t(std::floor(double(r.o[a]) + double(r.d[a]) * t +
+                                                  double(g.base[a]) - 0.5));
+                    float v = -INFINITY;
+                    for (int i = -1; i <= 2; ++i)
+                        for (int j = -1; j <= 2; ++j)
+                            for (int l = -1; l <= 2; ++l)
+                                v = std::max(v, ref.value(b[0] + i, b[1] + j, b[2] + l));
+                    points += ring == 2;
+                    exceed[ring - 1] += v > sg.majorant;
+                }
+            }
+        }
+        MESSAGE(g.name, ": ", points, " points, tricubic taps above the bound: ring 1 ",
+                exceed[0], ", ring 2 ", exceed[1]);
+        CHECK(exceed[1] == 0);
+        exceeded_by_ring1 += exceed[0];
+    }
+    CHECK(exceeded_by_ring1 > 0);
 }
