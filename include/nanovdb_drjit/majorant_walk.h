@@ -30,7 +30,8 @@
     the voxels within half a voxel of q. Every bound covers its cell plus a
     one-voxel ring, which is what trilinear stencils reach and leaves a
     margin of half a voxel for the rounding of positions between the walk
-    and the lookups. Positions are relative to `base` (a multiple of 4096
+    and the lookups (a tricubic stencil reaches 1.5 voxels: its table is
+    built with a ring of two, node_majorants(grid, 2)). Positions are relative to `base` (a multiple of 4096
     near the grid), so that floats keep their precision far from the index
     origin; absolute coordinates wrap around int32 as the lookups' do.
 
