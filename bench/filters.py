@@ -13,7 +13,8 @@ first sensor: albedo 0.9, sky + sun, max_depth 64, scale 40). Per variant, in
 one process:
 
   - the reference: volpathlocal + nanovdbvolume, deterministic trilinear, at
-    --ref-spp (rendered on llvm_ad_rgb once per grid, cached beside --out);
+    --ref-spp (rendered with the first variant, once per grid and resolution,
+    cached in bench/data/filters_refs/, by grid name, resolution and spp);
   - per configuration (integrator, plugin, filter), at --spp: the warm render
     time (median of --runs, each with a new seed) and the RMSE of each of
     those renders against the reference (mean; the reference's own noise,
@@ -131,6 +132,11 @@ def main():
         name, files = spec.split("=", 1)
         nvdb, vol = files.split(":", 1)
         ref = None
+        cache = os.path.join(HERE, "data", "filters_refs", f"{name}__r{a.res}__s{a.ref_spp}.npz")
+        if os.path.exists(cache):
+            with np.load(cache) as z:
+                ref, ref_var = z["ref"], float(z["ref_var"])
+            print(f"{name}: reference from {cache}", flush=True)
         for variant in a.variants:
             t0 = time.time()
             need_ref = ref is None
@@ -142,6 +148,8 @@ def main():
                 ref_var = np.mean(np.array(r["ref_half_diff"]) ** 2) / 4
                 print(f"{name}: reference {a.ref_spp} spp in {r['ref_time_s']:.1f} s, "
                       f"its RMSE ~{np.sqrt(ref_var):.4f}", flush=True)
+                os.makedirs(os.path.dirname(cache), exist_ok=True)
+                np.savez_compressed(cache, ref=ref, ref_var=ref_var)
             rf, rf_var = ref, ref_var
             base = None
             for cfg in CONFIGS:
@@ -156,7 +164,7 @@ def main():
                                  filter=cfg[2], time_s=c["time_s"], rmse=rmse, cost=cost,
                                  time_ratio=c["time_s"] / base[0], cost_ratio=cost / base[1]))
                 print(f"  {variant} {cfg}: {c['time_s']:.3f} s, RMSE {rmse:.4f}, "
-                      f"time x{c['time_s'] / base[0]:.2f}, cost x{cost / base[1]:.2f}",
+                      f"time x{c['time_s'] / base[0]:.3g}, cost x{cost / base[1]:.3g}",
                       flush=True)
             print(f"  ({variant}: {time.time() - t0:.0f} s)", flush=True)
 
@@ -177,7 +185,7 @@ def main():
     for r in rows:
         lines.append(f"| {r['grid']} | {r['variant']} | {r['integrator']} | {r['plugin']} | "
                      f"{r['filter']} | {r['time_s']:.3f} | {r['rmse']:.4f} | "
-                     f"{r['time_ratio']:.2f} | {r['cost_ratio']:.2f} |")
+                     f"{r['time_ratio']:.3g} | {r['cost_ratio']:.3g} |")
     os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
     with open(a.out, "w") as f:
         f.write("\n".join(lines) + "\n")

@@ -11,6 +11,8 @@
         finest cell at its midpoint, found through NanoVDB's own node structs
         and the loader's majorant table (a walk done by hand); thin nodes
         (coarse_limit > 0) are crossed as one cell with the node's M;
+      - empty root space is crossed in one step (walk_far: far_coords, whose
+        root tiles lie 10^9 voxels apart, walks in a few steps per ray);
       - the LLVM walk equals the scalar walk bit for bit, step for step, and
         the faithful readers (PNanoVDB's root search, 64-bit child offsets)
         walk exactly as the plan's fast readers;
@@ -204,8 +206,10 @@ std::vector<Segment> walk_scalar(const Buffer &buf, const Root &root,
 ndr::MajorantGrid<uint32_t> scalar_majorants(const WalkGrid &g,
                                              const loader::NodeMajorants *other = nullptr) {
     const loader::NodeMajorants &m = other ? *other : g.majorants;
-    return ndr::MajorantGrid<uint32_t>::make(m.layout, m.values, 1.f,
-                                             std::numeric_limits<float>::infinity(), g.base);
+    ndr::MajorantGrid<uint32_t> mg = ndr::MajorantGrid<uint32_t>::make(
+        m.layout, m.values, 1.f, std::numeric_limits<float>::infinity(), g.base);
+    mg.set_root_tiles(m.tile_origins, g.base, g.lo, g.hi); // (as the plugin)
+    return mg;
 }
 
 /// PNanoVDB's value at an absolute coordinate (its per-type readers)
@@ -383,9 +387,10 @@ TEST_CASE("majorant walk: LLVM equals scalar step for step") {
 
             UInt32 grid_words = dr::load<UInt32>(g.words.data(), g.words.size());
             ndr::Reader<UInt32> reader = ndr::Reader<UInt32>::from_plan(g.plan);
-            const auto mg = ndr::MajorantGrid<UInt32>::make(
+            auto mg = ndr::MajorantGrid<UInt32>::make(
                 g.majorants.layout, g.majorants.values, 1.f,
                 std::numeric_limits<float>::infinity(), g.base);
+            mg.set_root_tiles(g.majorants.tile_origins, g.base, g.lo, g.hi);
             const ndr::MajorantGrid<uint32_t> mgs = scalar_majorants(g);
             ndr::Reader<uint32_t> sreader = ndr::Reader<uint32_t>::from_plan(g.plan);
 
@@ -492,4 +497,86 @@ TEST_CASE("majorant walk: a ring of 2 bounds the tricubic reach, a ring of 1 doe
         exceeded_by_ring1 += exceed[0];
     }
     CHECK(exceeded_by_ring1 > 0);
+}
+
+TEST_CASE("majorant walk: empty root space in one step, stopping at the next root tile") {
+    // far_coords: root tiles up to 2e9 voxels apart. Rays from the
+    // background, 1e4 to 1e6 voxels away, to the voxels of the 3^3 block at
+    // (-1000000001)^3, the one near the walk's base (small cell-space
+    // coordinates: exact floats): the walk must jump to its root tile, not
+    // past it (every block voxel's value is within its segment's bound),
+    // and cross the empty root space in one step, not one per 4096^3 cell
+    const WalkGrid *g = nullptr;
+    for (const WalkGrid &w : walk_grids())
+        if (w.name == "far_coords")
+            g = &w;
+    REQUIRE(g != nullptr);
+    ndr::Reader<uint32_t> reader = ndr::Reader<uint32_t>::from_plan(g->plan);
+    const ndr::MajorantGrid<uint32_t> mg = scalar_majorants(*g);
+    REQUIRE(mg.far_jumps);
+    ndr::MajorantGrid<uint32_t> cell_by_cell = scalar_majorants(*g);
+    cell_by_cell.far_jumps = false;
+    size_t steps = 0, steps_cell_by_cell = 0;
+    const Reference ref(*g);
+    std::mt19937_64 rng(29);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    size_t rays = 0, exceed = 0, gaps = 0, most_steps = 0;
+    for (double distance : { 1e4, 1e5, 1e6 })
+        for (int n = 0; n < 40; ++n) {
+            // The target: a block voxel's centre (cell space, relative to base)
+            const int64_t c[3] = { -1000000001 + n % 3 - 1, -1000000001 + n / 3 % 3 - 1,
+                                   -1000000001 + n / 9 % 3 - 1 };
+            double target[3], dir[3], len = 0;
+            for (int a = 0; a < 3; ++a) {
+                target[a] = double(c[a] - int64_t(g->base[a])) + 0.5;
+                dir[a] = u(rng);
+                len += dir[a] * dir[a];
+            }
+            len = std::sqrt(len);
+            Ray r;
+            for (int a = 0; a < 3; ++a) {
+                r.d[a] = float(dir[a] / len);
+                r.o[a] = float(target[a] - distance * dir[a] / len);
+            }
+            // (t of the target, with the rounded ray)
+            double t_target = 0;
+            for (int a = 0; a < 3; ++a)
+                t_target += (target[a] - double(r.o[a])) * double(r.d[a]);
+            r.tmin = 0.f;
+            r.tmax = float(2 * distance);
+            r.coarse_limit = 0.f;
+            const std::vector<Segment> segs = reader.apply(
+                g->words.data(), [&](const auto &buf, const auto &root) {
+                    return walk_scalar(buf, root, mg, r, g->grid_type);
+                });
+            ++rays;
+            most_steps = std::max(most_steps, segs.size());
+            steps += segs.size();
+            steps_cell_by_cell += reader.apply(g->words.data(), [&](const auto &buf,
+                                                                      const auto &root) {
+                return walk_scalar(buf, root, cell_by_cell, r, g->grid_type);
+            }).size();
+            if (segs.empty() || segs.back().t1 != r.tmax)
+                ++gaps;
+            for (size_t s = 1; s < segs.size(); ++s)
+                gaps += !(std::fabs(segs[s].t0 - segs[s - 1].t1) <=
+                          2e-6f * std::max(1.f, std::fabs(segs[s - 1].t1)));
+            // The segment holding the target, and the value there
+            for (const Segment &sg : segs)
+                if (sg.t0 <= t_target && t_target < sg.t1) {
+                    const float v = ref.value(c[0], c[1], c[2]);
+                    if (v > sg.majorant && ++exceed <= 3) {
+                        INFO("distance " << distance << ": voxel value " << v
+                                         << " in a segment bounded by " << sg.majorant
+                                         << " [" << sg.t0 << ", " << sg.t1 << "]");
+                        CHECK(false);
+                    }
+                }
+        }
+    MESSAGE("far_coords: ", rays, " rays from 1e4-1e6 voxels away: ", steps, " steps (at most ",
+            most_steps, " per ray), ", steps_cell_by_cell, " cell by cell");
+    CHECK(exceed == 0);
+    CHECK(gaps == 0);
+    // (the steps left are those inside the target's root tile: every node)
+    CHECK(steps * 2 < steps_cell_by_cell);
 }

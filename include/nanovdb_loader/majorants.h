@@ -88,6 +88,10 @@ std::array<float, 3> max_in_box_per_channel(const ValidatedGrid &grid, const Ind
 struct NodeMajorants {
     nanovdb_drjit::MajorantTableLayout layout;
     std::vector<float> values;
+    /// The first voxel (x, y, z) of every valid root tile, in the root's
+    /// order: where the walk can leave empty root space (MajorantGrid::
+    /// set_root_tiles)
+    std::vector<int32_t> tile_origins;
 
     uint64_t bytes() const { return uint64_t(values.size()) * sizeof(float); }
 };

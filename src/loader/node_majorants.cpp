@@ -76,6 +76,7 @@ public:
         for (uint32_t t : m_view.tiles()) { // a tile lookups never reach keeps -Inf
             int32_t o[3];
             m_view.tile_origin(t, o);
+            m_out.tile_origins.insert(m_out.tile_origins.end(), o, o + 3);
             const uint64_t child = m_view.tile_child(t);
             float e;
             if (child != 0) {

@@ -64,6 +64,8 @@ SamplerSetup set_up_sampler(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader
     s.majorants = nanovdb_drjit::MajorantGrid<UInt32>::make(
         g.majorants.layout, g.majorants.values, (1.f + 0x1p-20f) * g.spectral_factor, out.max,
         out.cell_base);
+    s.majorants.set_root_tiles(g.majorants.tile_origins, out.cell_base, summary.bbox_min,
+                               summary.bbox_max);
     if (clamp) { // (walk cells outside the box: see MajorantGrid)
         const loader::IndexBox vb = volume_box ? *volume_box : loader::lookup_box(summary, false);
         int32_t lo[3], hi[3];
