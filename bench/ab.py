@@ -17,7 +17,8 @@ The table gives the median over the rounds of each build and new/old.
 --load-only measures the load time alone (median of 7 loads per process);
 --volume-args adds plugin parameters (JSON) to every volume; --integrator
 renders with another integrator (volpathlocal: both builds need
-plugins/volpathlocal.so); --filters limits the filters.
+plugins/volpathlocal.so); --filters limits the filters (any filter_type:
+nearest, trilinear, stochastic_trilinear, stochastic_tricubic).
 A measurement, not a test.
 """
 import argparse
