@@ -276,10 +276,7 @@ public:
             Throw("nanovdbvolume: \"%s\": invalid filter_type \"%s\", must be one of: "
                   "\"nearest\", \"trilinear\", \"stochastic_trilinear\" or "
                   "\"stochastic_tricubic\"", m_filename, filter);
-        // Stochastic filters' offsets in eval(): a hash of the position and
-        // of this seed, which differs between the volumes of one medium
-        m_seed = (uint32_t) std::hash<std::string>()(m_filename + '\n' +
-                                                      props.get<std::string>("grid", ""));
+
 
         std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
         if (invalid == "clamp")
@@ -354,6 +351,12 @@ public:
         }
         m_channel_count = m_second ? 6 : m_facts.grid_type == kVec3f ? 3 : 1;
         m_grid_name = m_facts.name;
+        // Stochastic filters' offsets in eval(): a hash of the position and
+        // of this seed, so that volumes of other files or grids (a medium's
+        // density and albedo) are dithered independently, and a scene
+        // renders the same on every run
+        m_seed = (uint32_t) std::hash<std::string>()(m_filename + '\n' + m_grid_name +
+                                                      '\n' + std::to_string(m_channel_count));
         set_index_box(summary, box);
         if (m_second)
             m_second->set_box(m_index_min_box, m_resolution_box, kVec3f, m_clamp);
