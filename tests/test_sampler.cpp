@@ -863,9 +863,8 @@ std::array<double, 4> bspline(double t) {
 /// A position as clamp_position keeps it: in the box (clamp), or within
 /// the int32 range
 float kept_position(const Reference &ref, float rel, int k) {
-    constexpr float limit = 2147483520.f;
     return ref.clamp ? std::min(std::max(rel, 0.f), float(ref.last[k]))
-                     : std::min(std::max(rel, -limit), limit);
+                     : std::min(std::max(rel, -ndr::INDEX_LIMIT), ndr::INDEX_LIMIT);
 }
 
 /// The deterministic filters the stochastic ones estimate, from PNanoVDB's

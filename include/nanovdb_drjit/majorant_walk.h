@@ -31,9 +31,10 @@
     one-voxel ring, which is what trilinear stencils reach and leaves a
     margin of half a voxel for the rounding of positions between the walk
     and the lookups (a tricubic stencil reaches 1.5 voxels: its table is
-    built with a ring of two, node_majorants(grid, 2)). Positions are relative to `base` (a multiple of 4096
-    near the grid), so that floats keep their precision far from the index
-    origin; absolute coordinates wrap around int32 as the lookups' do.
+    built with a ring of two, node_majorants(grid, 2)). Positions are
+    relative to `base` (a multiple of 4096 near the grid), so that floats
+    keep their precision far from the index origin; absolute coordinates
+    wrap around int32 as the lookups' do.
 
     A step that stays in the lower node of the previous step does not go
     back to the root: the walk keeps that node (and its M and R) in its
@@ -479,7 +480,7 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
  */
 template <typename UInt32, typename Float>
 DRJIT_NOINLINE void walk_far(const MajorantGrid<UInt32> &g, MajorantWalk<Float> &walk,
-              const dr::Array<Float, 3> &origin, const dr::mask_t<Float> &active) {
+                             const dr::Array<Float, 3> &origin, const dr::mask_t<Float> &active) {
     using Int32 = dr::int32_array_t<Float>;
     using Mask = dr::mask_t<Float>;
     Hdda<Float> &h = walk.hdda;

@@ -277,7 +277,6 @@ public:
                   "\"nearest\", \"trilinear\", \"stochastic_trilinear\" or "
                   "\"stochastic_tricubic\"", m_filename, filter);
 
-
         std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
         if (invalid == "clamp")
             m_invalid_values = nanovdb_loader::InvalidValues::Clamp;
