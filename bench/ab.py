@@ -94,7 +94,8 @@ def main():
     ap.add_argument("--volume-args", default="{}", help="JSON: extra plugin parameters")
     ap.add_argument("--integrator", default="volpath", choices=["volpath", "volpathlocal"])
     ap.add_argument("--filters", nargs="+", default=["nearest", "trilinear"],
-                    choices=["nearest", "trilinear"])
+                    choices=["nearest", "trilinear", "stochastic_trilinear",
+                             "stochastic_tricubic"])
     a = ap.parse_args()
     extra = json.loads(a.volume_args)
     for b in a.builds:

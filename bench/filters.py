@@ -5,7 +5,7 @@ today (volpath + gridvolume, trilinear).
     python3 bench/filters.py --grids cloud=cloud.nvdb:cloud.vol smoke=smoke.nvdb:smoke.vol
         [--variants llvm_ad_rgb scalar_rgb] [--res 64] [--spp 32] [--scalar-spp 8]
         [--ref-spp 4096]
-        [--runs 3] [--out bench/results/filters.md]
+        [--runs 3] [--out bench/results/filters.md] [--append]
 
 A grid is NAME=FILE.nvdb:FILE.vol (the .vol: `vdb2nvdb --dense` of the same
 grid, for gridvolume). The scene is the benchmark's (bench/scene.py, its
@@ -26,6 +26,9 @@ stochastic_tricubic renders a smoother medium than trilinear: its RMSE
 against the trilinear reference includes that difference (a bias, not
 noise), and its row says how much (the RMSE of its own converged image is
 not measured here). A measurement, not a test.
+
+--append keeps the rows of other grids already in --out's .json (and their
+commands), so that grids can be measured in several runs of one build.
 """
 import argparse
 import json
@@ -125,8 +128,24 @@ def main():
     ap.add_argument("--build", default="", help="a build folder holding plugins/ (default: "
                     "the installed package's)")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "filters.md"))
+    ap.add_argument("--append", action="store_true",
+                    help="keep the other grids' rows of --out's .json")
     a = ap.parse_args()
 
+    json_out = os.path.splitext(a.out)[0] + ".json"
+    command = (f"python3 bench/filters.py --grids {' '.join(a.grids)} --variants "
+               f"{' '.join(a.variants)} --res {a.res} --spp {a.spp} "
+               f"--scalar-spp {a.scalar_spp} --ref-spp {a.ref_spp} --runs {a.runs}"
+               + (" --append" if a.append else ""))
+    commands, kept = [command], []
+    if a.append and os.path.exists(json_out):
+        with open(json_out) as f:
+            old = json.load(f)
+        if isinstance(old, list):  # (before --append: the rows alone)
+            old = dict(commands=[], rows=old)
+        names = {spec.split("=", 1)[0] for spec in a.grids}
+        kept = [r for r in old["rows"] if r["grid"] not in names]
+        commands = old["commands"] + commands
     rows = []
     for spec in a.grids:
         name, files = spec.split("=", 1)
@@ -170,9 +189,7 @@ def main():
 
     lines = [
         "# Lookup filters: render time and error at equal time (bench/filters.py)", "",
-        f"`python3 bench/filters.py --grids {' '.join(a.grids)} --variants "
-        f"{' '.join(a.variants)} --res {a.res} --spp {a.spp} "
-        f"--scalar-spp {a.scalar_spp} --ref-spp {a.ref_spp} --runs {a.runs}`", "",
+        *[f"`{c}`" for c in commands], "",
         "Reference: volpathlocal + nanovdbvolume, trilinear, at the reference spp "
         "(llvm_ad_rgb). Ratios against volpath + gridvolume + trilinear, same variant, same "
         "spp. cost = RMSE^2 x time: below 1, the configuration reaches a given error in "
@@ -182,6 +199,7 @@ def main():
         "cost ratio |",
         "|---|---|---|---|---|---:|---:|---:|---:|",
     ]
+    rows = kept + rows
     for r in rows:
         lines.append(f"| {r['grid']} | {r['variant']} | {r['integrator']} | {r['plugin']} | "
                      f"{r['filter']} | {r['time_s']:.3f} | {r['rmse']:.4f} | "
@@ -189,8 +207,8 @@ def main():
     os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
     with open(a.out, "w") as f:
         f.write("\n".join(lines) + "\n")
-    with open(os.path.splitext(a.out)[0] + ".json", "w") as f:
-        json.dump(rows, f, indent=1)
+    with open(json_out, "w") as f:
+        json.dump(dict(commands=commands, rows=rows), f, indent=1)
     print(f"wrote {a.out}")
 
 

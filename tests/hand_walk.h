@@ -54,10 +54,10 @@ inline float finest_bound(const nanovdb::FloatGrid &grid, const nanovdb_loader::
         std::memcpy(&fractions, &m[slot + ndr::LOWER_BRICK_FRACTION_SLOT + b / 4], 4);
         if (!(brick - ndr::brick_min(brick, (fractions >> (8 * (b % 4))) & 255u) > 0.f))
             return clamp0(brick);
+        // A leaf or a tile: its entry's fraction of the brick's M
         const uint32_t nl = lo->CoordToOffset(ijk);
-        if (!lo->data()->isChild(nl))
-            return clamp0(std::max(lo->data()->getValue(nl), std::min(m[slot + 1], brick)));
-        return clamp0(m[uint32_t(lo->data()->getChild(nl) - tree.getFirstNode<0>())]);
+        std::memcpy(&fractions, &m[slot + ndr::LOWER_ENTRY_FRACTION_SLOT + nl / 4], 4);
+        return ndr::child_bound(brick, (fractions >> (8 * (nl % 4))) & 255u);
     }
     return clamp0(m[L.background_slot]);
 }

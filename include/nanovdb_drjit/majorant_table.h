@@ -13,8 +13,10 @@
 
       [0, leaf_slots)                         one per leaf, in leaf array order
                                               (FpN: one per 160 bytes of leaves)
-      lower_slot + 83 n + {0, 1, 2, 3 + b,    lower node n: M, R, m, brick b's M,
-                           67 + b / 4}        brick b's m (8 bits, byte b % 4)
+      lower_slot + 1107 n + {0, 1, 2,         lower node n: M, R, m,
+                             3 + b,           brick b's M,
+                             67 + b / 4,      brick b's m (8 bits, byte b % 4),
+                             83 + e / 4}      entry e's bound (8 bits, byte e % 4)
       upper_slot + 3 n + {0, 1, 2}            upper node n: M, R, m
       tile_slot + t                           root tile t, in table order
       background_slot                         the background
@@ -29,8 +31,12 @@
     q / 255 of the brick's M, rounded down, four bricks to a slot: like the
     node's m a measure, not a bound, so 8 bits do): a level between the
     lower node and its leaves that lets a walk cross thin parts of a node
-    in larger steps (and bounds the node's tiles by min(R, brick M)). See
-    nanovdb_loader/majorants.h for the exact definitions.
+    in larger steps. Each of its 16^3 entries (a leaf or a tile) has its
+    own bound, its ringed region's max, as an 8-bit fraction q / 255 of its
+    brick's M, rounded up (child_bound): a walk's step inside a lower node
+    reads one word of the table, not the node's child mask, its entry and
+    the leaf's slot (4 KiB per lower node). See nanovdb_loader/majorants.h
+    for the exact definitions.
 
     A slot is found from the node's word address without a search: node
     arrays are contiguous with a fixed stride per level (validation checks
@@ -44,6 +50,8 @@
 
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 
 namespace nanovdb_drjit {
@@ -55,7 +63,11 @@ static constexpr uint32_t LOWER_BRICK_COUNT = 64;
 /// 8-bit fractions of their M, four to a slot; per upper node: M, R, m
 static constexpr uint32_t LOWER_BRICK_M_SLOT = 3;
 static constexpr uint32_t LOWER_BRICK_FRACTION_SLOT = LOWER_BRICK_M_SLOT + LOWER_BRICK_COUNT;
-static constexpr uint32_t LOWER_SLOTS = LOWER_BRICK_FRACTION_SLOT + LOWER_BRICK_COUNT / 4;
+/// Then the bounds of its 16^3 entries as 8-bit fractions of their brick's
+/// M, four to a slot
+static constexpr uint32_t LOWER_ENTRY_COUNT = 4096;
+static constexpr uint32_t LOWER_ENTRY_FRACTION_SLOT = LOWER_BRICK_FRACTION_SLOT + LOWER_BRICK_COUNT / 4;
+static constexpr uint32_t LOWER_SLOTS = LOWER_ENTRY_FRACTION_SLOT + LOWER_ENTRY_COUNT / 4;
 static constexpr uint32_t UPPER_SLOTS = 3;
 
 /// The brick (0..63) of a lower node that holds local coordinate ijk & 127
@@ -76,6 +88,27 @@ inline uint32_t brick_fraction(float M, float m) {
         return 255;
     const float q = 255.f * (m / M);
     return q >= 255.f ? 254u : uint32_t(q); // below 255: m < M stays visible
+}
+
+/// An entry's bound from its brick's M and its 8-bit fraction q (the device
+/// and the tests compute it so, bit for bit: q = 255 gives M itself, as
+/// 255 * (1 / 255.f) rounds to 1; q = 0 gives 0, also where M is +-Inf)
+inline float child_bound(float M, uint32_t q) {
+    return q == 0 ? 0.f : (M > 0.f ? M : 0.f) * (float(q) * (1.f / 255.f));
+}
+
+/// The 8-bit fraction stored for an entry whose ringed region's max is r, in
+/// a brick of bound M >= r: the smallest q whose child_bound covers r with a
+/// margin of 2^-12 (the rounding of the device's two products, and of the
+/// walk's scaled copy of M, stays far below it)
+inline uint32_t child_fraction(float M, float r) {
+    if (!(r > 0.f) || !(M > 0.f))
+        return 0;
+    const double want = double(r) * (1.0 + 1.0 / 4096.0);
+    for (uint32_t q = uint32_t(std::max(0.0, std::floor(255.0 * want / double(M)))); q < 255; ++q)
+        if (double(child_bound(M, q)) >= want)
+            return q;
+    return 255;
 }
 
 /// Where the bounds of a grid's nodes sit in its majorant array

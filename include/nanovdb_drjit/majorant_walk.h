@@ -10,8 +10,8 @@
     (4096^3) -- and looks up the cell's bound in the grid's majorant table
     (majorant_table.h, filled by src/loader/node_majorants.cpp):
 
-      leaf                    its slot            (max over leaf + ring)
-      lower tile              max(value, min(R, brick M))
+      leaf, lower tile        its entry's byte    (max over the entry + ring,
+                                                   a fraction of its brick's M)
       upper tile              max(value, R)       (R: the node's ring bound)
       root tile, background   their slots
 
@@ -117,11 +117,13 @@ template <typename UInt32> struct MajorantGrid {
             float v = values[i] * factor;
             std::memcpy(&bits[i], &v, 4);
         }
-        // The bricks' 8-bit fractions are bits, not values: kept as they are
+        // The bricks' and entries' 8-bit fractions are bits, not values:
+        // kept as they are (they follow one another)
+        static_assert(LOWER_ENTRY_FRACTION_SLOT == LOWER_BRICK_FRACTION_SLOT + LOWER_BRICK_COUNT / 4 &&
+                      LOWER_SLOTS == LOWER_ENTRY_FRACTION_SLOT + LOWER_ENTRY_COUNT / 4);
         for (uint32_t s = layout.lower_slot; s < layout.upper_slot; s += LOWER_SLOTS)
-            for (uint32_t w = 0; w < LOWER_BRICK_COUNT / 4; ++w)
-                std::memcpy(&bits[s + LOWER_BRICK_FRACTION_SLOT + w],
-                            &values[s + LOWER_BRICK_FRACTION_SLOT + w], 4);
+            std::memcpy(&bits[s + LOWER_BRICK_FRACTION_SLOT], &values[s + LOWER_BRICK_FRACTION_SLOT],
+                        4 * (LOWER_SLOTS - LOWER_BRICK_FRACTION_SLOT));
         float bg = values[layout.background_slot] * factor;
         if constexpr (dr::is_jit_v<UInt32>)
             g.table = dr::load<UInt32>(bits.data(), bits.size());
@@ -200,7 +202,7 @@ template <typename Float> struct MajorantWalk {
     Float majorant;                 ///< bound of the current cell (unscaled)
     UInt32 lower;                   ///< kept lower node (word address; 0: none)
     dr::Array<Int32, 3> lower_key;  ///< its 128^3 block (absolute ijk >> 7)
-    Float lower_M, lower_R, lower_m; ///< its bounds, and its smallest value
+    Float lower_M, lower_m;         ///< its bound, and its smallest value
     UInt32 lower_slot;              ///< its first slot in the majorant table
     UInt32 brick_slot;              ///< the last brick's slot (0: none)
     Float brick_M, brick_m;         ///< ... its bound and its smallest value
@@ -220,26 +222,11 @@ template <typename Float> struct MajorantWalk {
                            dr::minimum(hdda.next.z(), hdda.tmax));
     }
 
-    DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_R, lower_m,
+    DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_m,
                  lower_slot, brick_slot, brick_M, brick_m, far, far_voxel)
 };
 
 namespace detail {
-
-/// The child offset of a table entry whose low word `lo` was read already,
-/// as read_int64_as_word_delta returns it: the high word is read too ...
-template <typename UInt32, typename Buffer>
-DRJIT_INLINE UInt32 child_delta_from_low(const Buffer &buf, const UInt32 &address,
-                                         const UInt32 &lo, const dr::mask_t<UInt32> &active) {
-    return (lo >> 2) | (read_uint32(buf, UInt32(address + 1u), active) << 30);
-}
-
-/// ... except where the plan says every offset fits in the low word
-template <typename UInt32, typename Buffer>
-DRJIT_INLINE UInt32 child_delta_from_low(const CompactOffsets<Buffer> &, const UInt32 &,
-                                         const UInt32 &lo, const dr::mask_t<UInt32> &) {
-    return lo >> 2;
-}
 
 template <typename UInt32, typename Table>
 DRJIT_INLINE dr::float32_array_t<UInt32> read_bound(const Table &table, const UInt32 &slot,
@@ -253,10 +240,10 @@ template <typename UInt32> struct CellInfo {
     UInt32 dim;
     Float bound;
     UInt32 lower;              ///< 0 if the cell is above the lower level
-    Float lower_M, lower_R, lower_m;
+    Float lower_M, lower_m;
     UInt32 lower_slot;
     dr::mask_t<UInt32> background; ///< no root tile covers the cell
-    DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_R, lower_m, lower_slot, background)
+    DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_m, lower_slot, background)
 };
 
 /// The bound of a tile value at `address`, whose first word the caller has
@@ -329,7 +316,6 @@ CellInfo<UInt32> cell_above_lower(const Buffer &buf, const Root &root,
                      LOWER_SLOTS * lower_words(UInt32(lower.address - g.lower_begin));
     out.lower = dr::select(has_lower, lower.address, UInt32(0u));
     out.lower_M = read_bound(g.words(), out.lower_slot, has_lower);
-    out.lower_R = read_bound(g.words(), UInt32(out.lower_slot + 1u), has_lower);
     out.lower_m = read_bound(g.words(), UInt32(out.lower_slot + 2u), has_lower);
     return out;
 }
@@ -352,13 +338,6 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     using Int32 = dr::int32_array_t<Float>;
     using Mask = dr::mask_t<Float>;
     using Cell = detail::CellInfo<UInt32>;
-    constexpr const GridTypeConstants &c = constants_of<GridType>;
-    // FpN leaves differ in size: one slot per 160 bytes (majorant_table.h)
-    constexpr uint32_t leaf_slot_words =
-        grid_type_traits<GridType>::type.codec == LeafCodec::FpN ? FPN_MIN_LEAF_SIZE / 4
-                                                                : c.leaf_size / 4;
-    const dr::divisor<uint32_t> leaf_words(leaf_slot_words);
-
     Coord<UInt32> ijk;
     for (int k = 0; k < 3; ++k)
         ijk[k] = dr::reinterpret_array<Int32>(UInt32(dr::reinterpret_array<UInt32>(p[k]) +
@@ -373,7 +352,6 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     cell.dim = UInt32(8u);
     cell.lower = walk.lower;
     cell.lower_M = walk.lower_M;
-    cell.lower_R = walk.lower_R;
     cell.lower_m = walk.lower_m;
     cell.lower_slot = walk.lower_slot;
     // g by reference: on the scalar path its table is a host vector, which a
@@ -394,7 +372,6 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     Mask in_lower = active & (cell.lower != 0u);
     walk.lower = dr::select(fresh & in_lower, cell.lower, walk.lower);
     walk.lower_M = dr::select(fresh & in_lower, cell.lower_M, walk.lower_M);
-    walk.lower_R = dr::select(fresh & in_lower, cell.lower_R, walk.lower_R);
     walk.lower_m = dr::select(fresh & in_lower, cell.lower_m, walk.lower_m);
     walk.lower_slot = dr::select(fresh & in_lower, cell.lower_slot, walk.lower_slot);
     for (int k = 0; k < 3; ++k)
@@ -427,26 +404,19 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
                                     coarse_limit);
     Mask into_brick = into_lower & !thin_brick;
 
-    // The entry: one read of its table word serves a tile (its value) and a
-    // leaf (its child offset)
-    LowerHandle<UInt32> lower{ cell.lower };
+    // The entry (a leaf or a tile): its bound, one byte of the table (a
+    // fraction of the brick's M, majorant_table.h's child_bound), not the
+    // node's child mask, its entry and the leaf's slot
     UInt32 n = lower_coord_to_offset(ijk);
-    Mask has_leaf = lower_get_child_mask(buf, lower, n, into_brick);
-    Mask lower_tile = into_brick & !has_leaf;
-    UInt32 entry = lower_get_table_address<GridType>(lower, n);
-    UInt32 entry_word = read_uint32(buf, entry, into_brick);
-    Float tile_value = detail::tile_bound<GridType>(buf, entry, entry_word, lower_tile);
-    LeafHandle<UInt32> leaf{ UInt32(lower.address +
-                                    detail::child_delta_from_low(buf, entry, entry_word, has_leaf)) };
-    UInt32 leaf_slot = leaf_words(UInt32(leaf.address - g.leaf_begin));
-    Float leaf_bound = detail::read_bound(g.words(), leaf_slot, has_leaf);
+    UInt32 entry_q = (read_uint32(g.words(),
+                                  UInt32(cell.lower_slot + LOWER_ENTRY_FRACTION_SLOT + (n >> 2)),
+                                  into_brick) >> ((n & 3u) << 3)) & 255u;
+    Float entry_bound = dr::select(entry_q == 0u, 0.f,
+                                   dr::maximum(brick_M, 0.f) * (Float(entry_q) * (1.f / 255.f)));
 
     Float bound = dr::select(thin_lower, cell.lower_M, cell.bound);
     bound = dr::select(thin_brick, brick_M, bound);
-    // A tile's ring lies in its brick's ringed region: R, but at most brick M
-    bound = dr::select(lower_tile, dr::maximum(tile_value, dr::minimum(cell.lower_R, brick_M)),
-                       bound);
-    bound = dr::select(has_leaf, leaf_bound, bound);
+    bound = dr::select(into_brick, entry_bound, bound);
     UInt32 dim = dr::select(thin_lower, UInt32(128u), cell.dim);
     dim = dr::select(thin_brick, UInt32(1u << BRICK_LOG2_DIM), dim);
     dim = dr::select(into_brick, UInt32(8u), dim);

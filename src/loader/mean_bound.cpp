@@ -97,7 +97,7 @@ private:
     void lower(uint64_t node, const int32_t o[3]) {
         const uint32_t slot =
             m_t.lower_slot + nanovdb_drjit::LOWER_SLOTS * uint32_t(m_view.node_index(1, node));
-        const float M = m_v[slot], R = m_v[slot + 1], m = m_v[slot + 2];
+        const float M = m_v[slot], m = m_v[slot + 2];
         if (uniform(M, m)) {
             add(M, overlap(o, layout::UPPER_ENTRY_LOG2));
             return;
@@ -117,11 +117,8 @@ private:
                 add(brick, vol);
                 continue;
             }
-            if (m_view.child_bit(1, node, n))
-                add(m_v[m_t.leaf_slot(uint32_t(m_view.child(1, node, n) / 4))], vol);
-            else
-                add(std::max(m_codec.tile_bound(m_buf + m_view.entry(1, node, n)), std::min(R, brick)),
-                    vol);
+            std::memcpy(&fractions, &m_v[slot + nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT + n / 4], 4);
+            add(nanovdb_drjit::child_bound(brick, (fractions >> (8 * (n % 4))) & 255u), vol);
         }
     }
 

@@ -68,6 +68,11 @@ public:
             s.node_begin, s.node_end, s.node_count, s.root_word, c.root_size, s.root_tile_count,
             m_codec.variable_leaf_size() ? layout::FPN_MIN_LEAF_SIZE : c.leaf_size);
         m_out.values.assign(m_out.layout.size, kNone);
+        // The entries' 8-bit fractions are bits, raised byte by byte: from 0
+        for (uint32_t i = 0; i < s.node_count[1]; ++i)
+            std::fill_n(&m_out.values[m_out.layout.lower_slot + nanovdb_drjit::LOWER_SLOTS * i +
+                                      nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT],
+                        nanovdb_drjit::LOWER_ENTRY_COUNT / 4, 0.f);
         m_background = bound_at(m_view.background());
     }
 
@@ -267,6 +272,7 @@ private:
                                                        uint32_t(n & 15) << 3);
             raise(brick[b], r);
             lower_to(brick_lo[b], lo);
+            m_entry[n] = r;
         }
         const size_t i = index(1, node);
         const uint32_t slot = m_out.layout.lower_slot + nanovdb_drjit::LOWER_SLOTS * uint32_t(i);
@@ -283,6 +289,25 @@ private:
                         << (8 * k);
             }
             std::memcpy(&m_out.values[slot + nanovdb_drjit::LOWER_BRICK_FRACTION_SLOT + w], &bits, 4);
+        }
+        // The entries' bounds, 8-bit fractions of their brick's (final) M,
+        // raised: a fraction of a smaller M stays a bound under a larger one
+        for (uint32_t w = 0; w < nanovdb_drjit::LOWER_ENTRY_COUNT / 4; ++w) {
+            float &word = m_out.values[slot + nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT + w];
+            uint32_t bits;
+            std::memcpy(&bits, &word, 4);
+            for (uint32_t k = 0; k < 4; ++k) {
+                const uint32_t n = 4 * w + k;
+                const uint32_t b = nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
+                                                           uint32_t((n >> 4) & 15) << 3,
+                                                           uint32_t(n & 15) << 3);
+                const uint32_t q = std::max(
+                    (bits >> (8 * k)) & 255u,
+                    nanovdb_drjit::child_fraction(
+                        m_out.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b], m_entry[n]));
+                bits = (bits & ~(255u << (8 * k))) | (q << (8 * k));
+            }
+            std::memcpy(&word, &bits, 4);
         }
         return M;
     }
@@ -321,6 +346,7 @@ private:
     const uint32_t m_ring; ///< the ring's thickness in voxels (1-8)
     float m_background = 0.f;
     std::vector<float> m_lower_min, m_lower_max, m_upper_min, m_upper_max; ///< no ring
+    std::vector<float> m_entry = std::vector<float>(nanovdb_drjit::LOWER_ENTRY_COUNT); ///< lower(): its entries' bounds
     NodeMajorants m_out;
 };
 

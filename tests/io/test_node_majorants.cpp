@@ -134,7 +134,7 @@ template <typename Leaf> float leaf_min(const Leaf &leaf) {
 }
 
 struct Counts {
-    size_t leaves = 0, lowers = 0, uppers = 0, tiles = 0, mismatches = 0;
+    size_t leaves = 0, lowers = 0, uppers = 0, tiles = 0, entries = 0, mismatches = 0;
 };
 
 void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with_R) {
@@ -240,6 +240,32 @@ void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with
                     check(float((fractions >> (8 * (b % 4))) & 255u),
                           float(nanovdb_drjit::brick_fraction(M_b, m_b)),
                           "lower " + std::to_string(i) + " brick fraction");
+                    // Its entries' bounds (8-bit fractions of M_b): at least
+                    // the max over each entry's ringed region, and within one
+                    // step of 1/255 (plus the 2^-12 margin) above it
+                    for (int32_t ex = bx; ex < bx + 32; ex += 8)
+                        for (int32_t ey = by; ey < by + 32; ey += 8)
+                            for (int32_t ez = bz; ez < bz + 32; ez += 8) {
+                                const uint32_t e = uint32_t(ex / 8) << 8 | uint32_t(ey / 8) << 4 |
+                                                   uint32_t(ez / 8);
+                                const int64_t X = int64_t(o[0]) + ex, Y = int64_t(o[1]) + ey,
+                                              Z = int64_t(o[2]) + ez;
+                                const float want = std::max(
+                                    box_max(v, X - 1, Y - 1, Z - 1, X + 8, Y + 8, Z + 8), 0.f);
+                                uint32_t words;
+                                std::memcpy(&words,
+                                            &maj.values[slot + nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT + e / 4],
+                                            4);
+                                const float got = nanovdb_drjit::child_bound(M_b, (words >> (8 * (e % 4))) & 255u);
+                                const bool tight = double(got) <= double(want) * (1.0 + 1.0 / 4096.0) +
+                                                                      double(std::max(M_b, 0.f)) / 254.0;
+                                if (!(got >= want && tight) && ++n.mismatches <= 8) {
+                                    INFO(name << ": lower " << i << " entry " << e << ": bound " << got
+                                              << ", region max " << want << ", brick M " << M_b);
+                                    CHECK((got >= want && tight));
+                                }
+                                ++n.entries;
+                            }
                 }
         ++n.lowers;
     }
