@@ -3,12 +3,15 @@ integrator give the lowest error per second, against the image users get
 today (volpath + gridvolume, trilinear).
 
     python3 bench/filters.py --grids cloud=cloud.nvdb:cloud.vol smoke=smoke.nvdb:smoke.vol
+        [--cases cloud cloudfield_400 ...] [--vdb smoke.vdb] [--data bench/data]
         [--variants llvm_ad_rgb scalar_rgb] [--res 64] [--spp 32] [--scalar-spp 8]
         [--ref-spp 4096]
         [--runs 3] [--out bench/results/filters.md] [--append]
 
 A grid is NAME=FILE.nvdb:FILE.vol (the .vol: `vdb2nvdb --dense` of the same
-grid, for gridvolume). The scene is the benchmark's (bench/scene.py, its
+grid, for gridvolume), a generated case of bench/cases.py (--cases: written
+by BUILD/bin/vdb2nvdb into --data, as bench/run.py does) or a .vdb file
+(--vdb FILE[:GRID], converted likewise; its name is the file's stem). The scene is the benchmark's (bench/scene.py, its
 first sensor: albedo 0.9, sky + sun, max_depth 64, scale 40). Per variant, in
 one process:
 
@@ -118,7 +121,13 @@ def run_child(a, variant, nvdb, vol, ref_spp):
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--grids", nargs="+", required=True, help="NAME=FILE.nvdb:FILE.vol")
+    ap.add_argument("--grids", nargs="+", default=[], help="NAME=FILE.nvdb:FILE.vol")
+    ap.add_argument("--cases", nargs="+", default=[], metavar="CASE",
+                    help="generated cases of bench/cases.py")
+    ap.add_argument("--vdb", nargs="+", default=[], metavar="FILE[:GRID]",
+                    help=".vdb files (converted with BUILD/bin/vdb2nvdb)")
+    ap.add_argument("--data", default=os.path.join(HERE, "data"),
+                    help="where --cases and --vdb grids are written (default bench/data/)")
     ap.add_argument("--variants", nargs="+", default=["llvm_ad_rgb", "scalar_rgb"])
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--spp", type=int, default=32)
@@ -131,6 +140,15 @@ def main():
     ap.add_argument("--append", action="store_true",
                     help="keep the other grids' rows of --out's .json")
     a = ap.parse_args()
+    if a.cases or a.vdb:
+        import cases as cases_mod
+        if not a.build:
+            ap.error("--cases and --vdb need --build (its bin/vdb2nvdb writes the grids)")
+        made = [cases_mod.generated_case(c, a.data, a.build) for c in a.cases]
+        made += [cases_mod.vdb_case(v, a.data, a.build) for v in a.vdb]
+        a.grids += [f"{c.name}={c.nvdb}:{c.vol}" for c in made]
+    if not a.grids:
+        ap.error("no grid: give --grids, --cases or --vdb")
 
     json_out = os.path.splitext(a.out)[0] + ".json"
     command = (f"python3 bench/filters.py --grids {' '.join(a.grids)} --variants "

@@ -7,25 +7,32 @@
 #      (NVDB_TEST_VARIANTS, default cuda_ad_rgb,cuda_ad_mono,cuda_ad_spectral;
 #      the GPU memory tests of tests/test_cuda.py; the >4 GiB grid),
 #   3. the benchmarks: bench/run.py --gpu (nanovdbvolume vs gridvolume on
-#      cuda_ad_rgb) and bench/huge_sparse.py (a grid whose dense form does not
-#      fit on the GPU),
+#      cuda_ad_rgb, and volpathlocal), bench/filters.py (every filter with
+#      volpath and volpathlocal against volpath + gridvolume's hardware
+#      trilinear, error at equal time: issue 19's CUDA targets) and
+#      bench/huge_sparse.py (a grid whose dense form does not fit on the GPU),
 # and writes logs and results to --out. Needs: Python 3 with numpy and pytest
 # (the version the kit was packed for), an NVIDIA driver.
 #
-# Usage: bash gpu-kit/run.sh [--out DIR] [--home DIR] [--steps "doctest pytest bench huge"]
-#                            [--bench-args "..."] [--huge-args "..."] [-- PYTEST ARGS...]
+# Usage: bash gpu-kit/run.sh [--out DIR] [--home DIR]
+#                            [--steps "doctest pytest bench filters huge"]
+#                            [--bench-args "..."] [--filters-args "..."] [--huge-args "..."]
+#                            [-- PYTEST ARGS...]
+# Where a device call is time-limited, run one step per call (--steps bench,
+# --steps filters, ...).
 set -uo pipefail
 KIT=$(cd "$(dirname "$0")" && pwd)
 OUT=$PWD/gpu-kit-results
 HOME_DIR=${NVDB_KIT_HOME:-/tmp/nvdb-gpu-kit}
-STEPS="doctest pytest bench huge"
-BENCH_ARGS="" HUGE_ARGS=""
+STEPS="doctest pytest bench filters huge"
+BENCH_ARGS="--integrators volpath volpathlocal" FILTERS_ARGS="" HUGE_ARGS=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) OUT=$2; shift 2 ;;
     --home) HOME_DIR=$2; shift 2 ;;
     --steps) STEPS=$2; shift 2 ;;
     --bench-args) BENCH_ARGS=$2; shift 2 ;;
+    --filters-args) FILTERS_ARGS=$2; shift 2 ;;
     --huge-args) HUGE_ARGS=$2; shift 2 ;;
     --) shift; break ;;
     *) echo "unknown argument: $1 (see the header of this script)" >&2; exit 2 ;;
@@ -97,6 +104,15 @@ if want bench; then
   # shellcheck disable=SC2086
   step bench "$PYTHON" bench/run.py --gpu --build "$H/build" --data "$H/bench-data" \
        --out "$OUT/bench" $BENCH_ARGS
+fi
+if want filters; then
+  smoke="$NVDB_SHARED_DATA/openvdb_smoke1_fog.vdb"
+  [ -f "$smoke" ] || smoke=""
+  # shellcheck disable=SC2086
+  step filters "$PYTHON" bench/filters.py --build "$H/build" --data "$H/bench-data" \
+       --cases cloud cloudfield_400 sphere_fog_256 constant_300 ${smoke:+--vdb "$smoke"} \
+       --variants cuda_ad_rgb --res 256 --spp 64 --ref-spp 4096 --runs 5 \
+       --out "$OUT/bench/filters.md" $FILTERS_ARGS
 fi
 if want huge; then
   # shellcheck disable=SC2086
