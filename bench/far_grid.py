@@ -25,14 +25,8 @@ ROOT = os.path.dirname(HERE)
 CHILD = r"""
 import json, statistics, sys, time
 sys.path.insert(0, {here!r})
-import drjit as dr, mitsuba as mi
-mi.set_variant({variant!r})
-try:
-    import nanovdb_mitsuba  # noqa: F401 (the installed plugins' folder)
-except ImportError:
-    pass
-if {build!r}:
-    mi.file_resolver().prepend({build!r})
+from child_setup import mitsuba_for
+dr, mi = mitsuba_for({variant!r}, {build!r})
 from scene import turntable_scene, volume_dict
 out = {{}}
 for res, spp in {sizes!r}:

@@ -1,0 +1,23 @@
+"""What a benchmark's child process does first (bench/filters.py,
+bench/far_grid.py): Mitsuba in the given variant, with the plugins of a
+build folder searched before the installed package's.
+
+The installed `nanovdb_mitsuba` package, if any, is imported before the
+build folder is prepended: importing it afterwards would put its own plugin
+folder first and silently render with the installed plugins.
+"""
+
+
+def mitsuba_for(variant, build=""):
+    """Returns (drjit, mitsuba), the variant set and `build` (a folder
+    holding plugins/; "" for the installed plugins) searched first."""
+    import drjit as dr
+    import mitsuba as mi
+    mi.set_variant(variant)
+    try:
+        import nanovdb_mitsuba  # noqa: F401 (the installed plugins' folder)
+    except ImportError:
+        pass
+    if build:
+        mi.file_resolver().prepend(build)  # (searched first)
+    return dr, mi
