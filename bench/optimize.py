@@ -1,0 +1,173 @@
+"""Inverse rendering benchmark (issue 20): recover a volume's densities from
+rendered views with Mitsuba's differentiable volumetric path tracer, and
+measure what one optimization step costs.
+
+    python3 bench/optimize.py --target cloud.vol [--plugin gridvolume]
+        [--variant llvm_ad_rgb] [--views 8] [--res 64] [--spp 8] [--ref-spp 512]
+        [--iters 60] [--lr 0.05] [--max-depth 8] [--out bench/results/optimize]
+
+The scene is the benchmark's (bench/scene.py: the volume in a unit cube,
+albedo 0.9, sky + sun, scale 40) with `prbvolpath` (max_depth --max-depth)
+and the turntable's first --views sensors. The target images are `volpath`
+renders of the target volume at --ref-spp. The optimized volume starts as a
+constant (a tenth of the target's mean, in the same box and resolution) and
+takes one view per iteration, in turn: render, L2 loss against that view's
+target, backward, Adam step, values clamped at 0.
+
+Per iteration: the wall time (render + backward + step + update), the
+loss, and the RMSE of the volume's values against the target's (the
+target is known here, so the recovery itself is measured, not only the
+images). Per run: the bytes of an optimization step, counted from the
+arrays (values, gradient, Adam's two moments: 16 bytes per value) and as
+the process's peak RSS above its level after loading, and the time per
+iteration (median of the warm ones).
+
+`--plugin gridvolume` optimizes gridvolume's `data` (a dense tensor over
+the whole box). `--plugin nanovdbvolume` needs its differentiable values
+(issue 20); until then it stops with a message. A measurement, not a test;
+results: OUT/PLUGIN_TARGET.{json,csv,png}.
+"""
+import argparse
+import json
+import os
+import resource
+import statistics
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+
+
+def peak_rss_bytes():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--target", required=True, help="the target volume (.vol for gridvolume)")
+    ap.add_argument("--plugin", default="gridvolume", choices=["gridvolume", "nanovdbvolume"])
+    ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--build", default="", help="a build folder holding plugins/")
+    ap.add_argument("--views", type=int, default=8)
+    ap.add_argument("--res", type=int, default=64)
+    ap.add_argument("--spp", type=int, default=8)
+    ap.add_argument("--ref-spp", type=int, default=512)
+    ap.add_argument("--iters", type=int, default=60)
+    ap.add_argument("--lr", type=float, default=0.05)
+    ap.add_argument("--max-depth", type=int, default=8)
+    ap.add_argument("--out", default=os.path.join(HERE, "results", "optimize"))
+    a = ap.parse_args()
+
+    from child_setup import mitsuba_for
+    dr, mi = mitsuba_for(a.variant, a.build)
+    from scene import turntable_scene
+
+    def scene_with(volume, integrator, spp):
+        desc = turntable_scene(volume, a.res, spp, integrator)
+        desc["integrator"]["max_depth"] = a.max_depth
+        for i in range(a.views, 8):
+            del desc[f"sensor_{i}"]
+        return mi.load_dict(desc)
+
+    # The target images
+    target = mi.load_dict({"type": a.plugin, "filename": a.target})
+    ref_scene = scene_with(target, "volpath", a.ref_spp)
+    t0 = time.perf_counter()
+    refs = [mi.render(ref_scene, sensor=v, seed=1000 + v) for v in range(a.views)]
+    dr.eval(refs)
+    print(f"target images: {a.views} views, {a.ref_spp} spp, {time.perf_counter() - t0:.1f} s",
+          flush=True)
+
+    key_suffix = "data"
+    target_values = mi.traverse(target)
+    key = next((k for k in target_values.keys() if k.endswith(key_suffix)), None)
+    if key is None and a.plugin == "nanovdbvolume":
+        sys.exit("nanovdbvolume exposes no differentiable values yet (issue 20): "
+                 f"mi.traverse gives {list(target_values.keys())}")
+    truth = np.array(target_values[key]).ravel()
+    del target_values, target, ref_scene
+
+    # The volume to optimize: the same box and resolution, one constant value
+    opt = mi.load_dict({"type": a.plugin, "filename": a.target})
+    scene = scene_with(opt, "prbvolpath", a.spp)
+    params = mi.traverse(scene)
+    pkey = next(k for k in params.keys() if k.endswith("sigma_t." + key_suffix))
+    shape = params[pkey].shape
+    params[pkey] = dr.full(mi.TensorXf, float(truth.mean()) * 0.1, shape)
+    params.update()
+    n_values = int(np.prod(shape))
+    dr.eval()
+    rss_loaded = peak_rss_bytes()
+
+    optimizer = mi.ad.Adam(lr=a.lr)
+    optimizer[pkey] = params[pkey]
+    params.update(optimizer)
+
+    rows = []
+    t_start = time.perf_counter()
+    for it in range(a.iters):
+        v = it % a.views
+        t0 = time.perf_counter()
+        img = mi.render(scene, params, sensor=v, seed=it, spp=a.spp)
+        loss = dr.mean(dr.square(img - refs[v]))
+        dr.backward(loss)
+        optimizer.step()
+        optimizer[pkey] = dr.maximum(optimizer[pkey], 0.0)
+        params.update(optimizer)
+        dr.eval()
+        loss_value = float(np.array(loss).ravel()[0])
+        dt = time.perf_counter() - t0
+        values = np.array(params[pkey]).ravel()
+        vol_rmse = float(np.sqrt(np.mean((values - truth) ** 2)))
+        rows.append(dict(iter=it, view=v, time_s=dt, elapsed_s=time.perf_counter() - t_start,
+                         loss=loss_value, volume_rmse=vol_rmse))
+        print(f"  iter {it:3d} view {v}: loss {loss_value:.5f}, volume RMSE {vol_rmse:.4f}, "
+              f"{dt:.2f} s", flush=True)
+
+    warm = [r["time_s"] for r in rows[min(a.views, len(rows) - 1):]] or [rows[-1]["time_s"]]
+    summary = dict(
+        plugin=a.plugin, target=os.path.abspath(a.target), variant=a.variant,
+        views=a.views, res=a.res, spp=a.spp, max_depth=a.max_depth, iters=a.iters, lr=a.lr,
+        values=n_values, step_bytes_counted=16 * n_values,
+        peak_rss_above_loaded=max(peak_rss_bytes() - rss_loaded, 0),
+        time_per_iter_s=statistics.median(warm),
+        volume_rmse_start=float(np.sqrt(np.mean((truth.mean() * 0.1 - truth) ** 2))),
+        volume_rmse_end=rows[-1]["volume_rmse"], loss_end=rows[-1]["loss"])
+    print(json.dumps(summary, indent=1))
+
+    os.makedirs(a.out, exist_ok=True)
+    stem = os.path.join(a.out, f"{a.plugin}_{os.path.splitext(os.path.basename(a.target))[0]}")
+    with open(stem + ".json", "w") as f:
+        json.dump(dict(summary=summary, rows=rows), f, indent=1)
+    with open(stem + ".csv", "w") as f:
+        f.write("iter,view,time_s,elapsed_s,loss,volume_rmse\n")
+        for r in rows:
+            f.write(f"{r['iter']},{r['view']},{r['time_s']:.4f},{r['elapsed_s']:.4f},"
+                    f"{r['loss']:.6g},{r['volume_rmse']:.6g}\n")
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(1, 2, figsize=(9, 3.5))
+        ax[0].semilogy([r["iter"] for r in rows], [r["loss"] for r in rows], label="image loss")
+        ax[0].semilogy([r["iter"] for r in rows], [r["volume_rmse"] for r in rows],
+                       label="volume RMSE")
+        ax[0].set_xlabel("iteration")
+        ax[0].legend()
+        ax[1].semilogy([r["elapsed_s"] for r in rows], [r["loss"] for r in rows])
+        ax[1].set_xlabel("time [s]")
+        ax[1].set_ylabel("image loss")
+        fig.suptitle(f"{a.plugin}, {os.path.basename(a.target)}, {a.variant}")
+        fig.tight_layout()
+        fig.savefig(stem + ".png", dpi=100)
+    except ImportError:
+        pass
+    print(f"wrote {stem}.json, .csv, .png")
+
+
+if __name__ == "__main__":
+    main()
