@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install.sh
 echo "== doctest (ctest)"
-ctest --test-dir build --output-on-failure
+ctest --test-dir build --output-on-failure --parallel "$(nproc)"
 echo "== fuzz (short run; NVDB_FUZZ_SECONDS=${NVDB_FUZZ_SECONDS:-20})"
 # tests/fuzz/fuzz_nvdb.cpp with clang (libFuzzer + ASan + UBSan), in its own
 # build directory. Seeds: small generated grids + ../shared/data (in place).
