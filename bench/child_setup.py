@@ -1,5 +1,5 @@
 """What a benchmark's child process does first (bench/filters.py,
-bench/far_grid.py): Mitsuba in the given variant, with the plugins of a
+bench/far_grid.py, bench/worker.py, bench/optimize.py): Mitsuba in the given variant, with the plugins of a
 build folder searched before the installed package's.
 
 The installed `nanovdb_mitsuba` package, if any, is imported before the
@@ -16,7 +16,7 @@ def mitsuba_for(variant, build=""):
     mi.set_variant(variant)
     try:
         import nanovdb_mitsuba  # noqa: F401 (the installed plugins' folder)
-    except ImportError:
+    except (ImportError, RuntimeError):  # (not installed, or without its plugins)
         pass
     if build:
         mi.file_resolver().prepend(build)  # (searched first)

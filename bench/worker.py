@@ -208,10 +208,8 @@ def jit_compile_ms(dr):
 
 def main():
     spec = json.load(open(sys.argv[1]))
-    import drjit as dr
-    import mitsuba as mi
-    mi.set_variant(spec["variant"])
-    mi.file_resolver().prepend(spec["build"])
+    from child_setup import mitsuba_for
+    dr, mi = mitsuba_for(spec["variant"], spec["build"])
     from scene import turntable_scene
     out = {"spec": {k: v for k, v in spec.items() if k not in ("out_json", "out_npz")},
            "loadavg_start": os.getloadavg()}
