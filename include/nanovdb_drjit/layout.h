@@ -48,6 +48,10 @@ static constexpr uint32_t GRID_TYPE_FP16  = 15;
 static constexpr uint32_t GRID_TYPE_FPN   = 16;
 /// PNANOVDB_GRID_TYPE_END: the first value past PNanoVDB 32.4's table
 static constexpr uint32_t GRID_TYPE_END   = 20;
+/// PNANOVDB_GRID_TYPE_ONINDEX (NanoVDB 32.5 on): an index grid. Its tree maps
+/// each active voxel and active tile to a value index (0: the background,
+/// 1..N the values, which live elsewhere: a blind channel, or an array)
+static constexpr uint32_t GRID_TYPE_ONINDEX = 20;
 
 // ---- Map (PNANOVDB_MAP_*) --------------------------------------------------------
 
@@ -182,6 +186,19 @@ static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_FP16 = [] {
 static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_FPN = [] {
     GridTypeConstants c = GRID_TYPE_CONSTANTS_FP4; c.leaf_size = 96; return c; }();
 
+/// ... [PNANOVDB_GRID_TYPE_ONINDEX] (PNanoVDB 32.6): 64-bit value indices
+/// (the background, stats and tiles); a leaf holds no values, only its mask,
+/// the index of its first active voxel (u64 at leaf_off_table) and the
+/// prefix sums of its mask's popcounts (u64 after it: seven 9-bit fields)
+static constexpr GridTypeConstants GRID_TYPE_CONSTANTS_ONINDEX = {
+    32, 40, 48, 56, 64, 96, 0, 8, 24, 32,
+    8224, 8232, 8240, 8248, 8256, 270400,
+    1056, 1064, 1072, 1080, 1088, 33856,
+    80, 80, 80, 80, 80, 96
+};
+/// Bytes from an OnIndex leaf's table to its prefix sums
+static constexpr uint32_t ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM = 8;
+
 /// How a type's values are stored (what PNanoVDB's per-type read functions
 /// encode in their names)
 enum class LeafCodec : uint32_t {
@@ -189,7 +206,8 @@ enum class LeafCodec : uint32_t {
     Half,    ///< binary16 everywhere
     Fixed,   ///< Fp4/Fp8/Fp16: float tiles, leaves of 2^log2_bits-bit codes
     FpN,     ///< as Fixed, the bit width per leaf (flags >> 5)
-    Vec3f    ///< 3 floats everywhere
+    Vec3f,   ///< 3 floats everywhere
+    OnIndex  ///< value indices everywhere; the values in a separate array
 };
 
 /// What the loader and the lookups need to know about a supported type
@@ -210,6 +228,7 @@ static constexpr ValueType VALUE_TYPES[] = {
     { GRID_TYPE_FP16,  "Fp16",  &GRID_TYPE_CONSTANTS_FP16,  LeafCodec::Fixed,   4, 1 },
     { GRID_TYPE_FPN,   "FpN",   &GRID_TYPE_CONSTANTS_FPN,   LeafCodec::FpN,     0, 1 },
     { GRID_TYPE_VEC3F, "Vec3f", &GRID_TYPE_CONSTANTS_VEC3F, LeafCodec::Vec3f,   5, 3 },
+    { GRID_TYPE_ONINDEX, "OnIndex", &GRID_TYPE_CONSTANTS_ONINDEX, LeafCodec::OnIndex, 0, 1 },
 };
 
 /// The supported type `grid_type`, or nullptr
@@ -248,6 +267,7 @@ decltype(auto) visit_value_type(uint32_t grid_type, Fn &&fn) {
         case GRID_TYPE_FP8:  return fn(integral_constant<uint32_t, GRID_TYPE_FP8>{});
         case GRID_TYPE_FP16: return fn(integral_constant<uint32_t, GRID_TYPE_FP16>{});
         case GRID_TYPE_FPN:  return fn(integral_constant<uint32_t, GRID_TYPE_FPN>{});
+        case GRID_TYPE_ONINDEX: return fn(integral_constant<uint32_t, GRID_TYPE_ONINDEX>{});
         case GRID_TYPE_VEC3F:
             if constexpr (WithVec3f)
                 return fn(integral_constant<uint32_t, GRID_TYPE_VEC3F>{});
@@ -281,6 +301,14 @@ static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FP4, 4));
 static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FP8, 8));
 static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FP16, 16));
 static_assert(fills_nodes(GRID_TYPE_CONSTANTS_FPN, 0));
+// OnIndex: internal nodes as float's (8-byte entries); a leaf's "table" is
+// its first index and its prefix sums, 16 bytes
+static_assert(GRID_TYPE_CONSTANTS_ONINDEX.leaf_off_table + 16 == GRID_TYPE_CONSTANTS_ONINDEX.leaf_size &&
+              GRID_TYPE_CONSTANTS_ONINDEX.upper_off_table == GRID_TYPE_CONSTANTS_FLOAT.upper_off_table &&
+              GRID_TYPE_CONSTANTS_ONINDEX.lower_off_table == GRID_TYPE_CONSTANTS_FLOAT.lower_off_table &&
+              GRID_TYPE_CONSTANTS_ONINDEX.upper_size == GRID_TYPE_CONSTANTS_FLOAT.upper_size &&
+              GRID_TYPE_CONSTANTS_ONINDEX.lower_size == GRID_TYPE_CONSTANTS_FLOAT.lower_size &&
+              GRID_TYPE_CONSTANTS_ONINDEX.root_size % NODE_ALIGNMENT == 0);
 static_assert(fpn_leaf_size(0) == FPN_MIN_LEAF_SIZE && fpn_leaf_size(4u << 5) == 1120);
 
 // ---- Root keys (host side; the device computes keys in pnanovdb.h) ----------------

@@ -248,7 +248,7 @@ template <typename UInt32> struct CellInfo {
 
 /// The bound of a tile value at `address`, whose first word the caller has
 /// read: the value (Half: its low half-word, as tiles are word-aligned),
-/// for Vec3f its largest channel
+/// for Vec3f its largest channel; index grids: none beyond R
 template <uint32_t GridType, typename Buffer, typename UInt32>
 DRJIT_INLINE dr::float32_array_t<UInt32> tile_bound(const Buffer &buf, const UInt32 &address,
                                                     const UInt32 &first_word,
@@ -261,6 +261,11 @@ DRJIT_INLINE dr::float32_array_t<UInt32> tile_bound(const Buffer &buf, const UIn
         return dr::maximum(dr::reinterpret_array<Float>(first_word),
                            dr::maximum(read_float(buf, UInt32(address + 1u), active),
                                        read_float(buf, UInt32(address + 2u), active)));
+    } else if constexpr (codec == LeafCodec::OnIndex) {
+        // An index, not a value: the loader keeps every upper tile's value
+        // under its node's R (node_majorants.cpp), which bounds it here
+        (void) first_word;
+        return Float(0.f);
     } else {
         return dr::reinterpret_array<Float>(first_word);
     }

@@ -577,6 +577,51 @@ DRJIT_INLINE UInt32 root_get_value_address(const Buffer &buf,
 // ---------------------------------------------------------------------------
 
 /**
+ * The value index at a value address and level of voxel `ijk` in an OnIndex
+ * grid (PNanoVDB 32.6): pnanovdb_leaf_onindex_get_value_index at level 0 --
+ * 0 for an inactive voxel, else the leaf's first index plus the active
+ * voxels before it (the popcount of its mask word below the voxel, plus the
+ * prefix sum of the words before, a 9-bit field of the u64 after the first
+ * index) -- and pnanovdb_read_uint64 at the address above (a tile's or the
+ * background's index). The low 32 bits: the loader refuses index grids of
+ * 2^32 values or more. Inactive lanes return 0.
+ */
+template <uint32_t GridType, typename Buffer, typename UInt32>
+DRJIT_INLINE UInt32 root_read_index(const Buffer &buf, const UInt32 &address,
+                                    const UInt32 &level, const Coord<UInt32> &ijk,
+                                    const dr::mask_t<UInt32> &active) {
+    static_assert(grid_type_traits<GridType>::type.codec == LeafCodec::OnIndex, "an index grid");
+    constexpr const GridTypeConstants &c = constants_of<GridType>;
+    using Mask = dr::mask_t<UInt32>;
+    Mask in_leaf = active & (level == LEVEL_LEAF);
+    UInt32 n = leaf_coord_to_offset(ijk);
+    // The mask's 32-bit word holding bit n, and the bits below n in it
+    UInt32 leaf = UInt32(address - to_words(c.leaf_off_table));
+    UInt32 mask_word = read_uint32(buf, UInt32(leaf + to_words(LEAF_OFF_VALUE_MASK) + (n >> 5)),
+                                   in_leaf);
+    UInt32 bit = UInt32(1u) << (n & 31u);
+    Mask on = in_leaf & ((mask_word & bit) != 0u);
+    UInt32 sum = dr::popcnt(UInt32(mask_word & (bit - 1u)));
+    // The other half of the voxel's 64-bit mask word, when n is in its upper half
+    Mask upper_half = on & ((n & 32u) != 0u);
+    sum += dr::popcnt(read_uint32(buf, UInt32(leaf + to_words(LEAF_OFF_VALUE_MASK) +
+                                              ((n >> 5) & ~1u)), upper_half));
+    // The prefix sum of the 64-bit words before: field w - 1 (9 bits each)
+    UInt32 word = n >> 6;
+    Mask later = on & (word > 0u);
+    UInt32 shift = 9u * (word - 1u);
+    UInt32 p_lo = read_uint32(buf, UInt32(address + to_words(ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM)), later),
+           p_hi = read_uint32(buf, UInt32(address + to_words(ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM) + 1u), later);
+    // (p_hi << 1) << (31 - shift): shift = 0 must not shift by 32
+    UInt32 field = dr::select(shift < 32u, (p_lo >> (shift & 31u)) | ((p_hi << 1u) << (31u - (shift & 31u))),
+                              p_hi >> ((shift - 32u) & 31u));
+    sum += dr::select(later, field & 511u, UInt32(0u));
+    UInt32 leaf_index = dr::select(on, read_uint32(buf, address, on) + sum, UInt32(0u));
+    UInt32 tile_index = read_uint32(buf, address, active & !in_leaf);
+    return dr::select(in_leaf, leaf_index, tile_index);
+}
+
+/**
  * The scalar value at a value address and level of voxel `ijk`, read as the
  * type's PNanoVDB reader does: pnanovdb_read_float (float);
  * pnanovdb_read_half (Half, every level); pnanovdb_root_fp4/fp8/fp16/fpn_read_float
@@ -592,6 +637,11 @@ root_read_float(const Buffer &buf, const UInt32 &address, const UInt32 &level,
     using Mask = dr::mask_t<UInt32>;
     if constexpr (t.codec == LeafCodec::Float32) {
         return read_float(buf, address, active);
+    } else if constexpr (t.codec == LeafCodec::OnIndex) {
+        // No values in an index grid: its value index, as a float (what a
+        // lookup through an array holding i at index i returns; the sampler
+        // reads its values array instead)
+        return dr::float32_array_t<UInt32>(root_read_index<GridType>(buf, address, level, ijk, active));
     } else if constexpr (t.codec == LeafCodec::Half) {
         UInt32 high = dr::select(level == LEVEL_LEAF, leaf_coord_to_offset(ijk) & 1u, 0u);
         return read_half(buf, address, high, active);

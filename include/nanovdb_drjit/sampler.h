@@ -161,6 +161,11 @@ public:
     void set_scales(std::vector<float> scales, uint32_t tiles_begin, uint32_t leaf_begin_word,
                     uint32_t tile_begin_word);
 
+    /// Index grids (OnIndex): the value of every index but 0, index i at
+    /// values[i - 1], and the background (index 0). On JIT backends the
+    /// values are a Float array that lookups gather from: differentiable
+    void set_index_values(const float *values, size_t count, float background);
+
     /// count_lookups: start counting (one atomic add per counted lane)
     void enable_counters();
 
@@ -230,9 +235,12 @@ public:
     Float max;                     ///< the clamp of every lookup
     Vector3f max3;                 ///< ... of each channel (Vec3f)
     Scales scales;                 ///< spectral Vec3f: each value's scale
+    Scales index_values;           ///< index grids: value index i + 1's value at i
+    Float index_background;        ///< index grids: index 0's value
     UInt32 scale_tiles, scale_background, leaf_begin_word, tile_begin_word;
 
     NVDB_TRAVERSE(grid, reader, majorants, index_min, last_voxel, max, max3, scales,
+                  index_values, index_background,
                   scale_tiles, scale_background, leaf_begin_word, tile_begin_word, m_counters)
 
 private:
@@ -255,6 +263,12 @@ private:
     Vector3f clamp_position(const Vector3f &rel) const;
     /// The value at an absolute coordinate (scalar types), clamped to max
     Float value_at(const Coord<UInt32> &ijk, const Mask &active) const;
+    /// Index grids: the value of a value index (0: the background)
+    Float indexed_value(const UInt32 &index, const Mask &active) const;
+    /// The value at a value address and level (scalar types and index grids)
+    template <uint32_t T, typename Buf>
+    Float read_value(const Buf &buf, const UInt32 &address, const UInt32 &level,
+                     const Coord<UInt32> &ijk, const Mask &active) const;
     void count_step(const Walk &walk, const Mask &active) const;
 
     bool m_counting = false;

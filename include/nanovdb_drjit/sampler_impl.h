@@ -64,6 +64,15 @@ void GridSampler<Float>::set_scales(std::vector<float> s, uint32_t tiles_begin,
         scales = std::move(s);
 }
 
+template <typename Float>
+void GridSampler<Float>::set_index_values(const float *values, size_t count, float background) {
+    index_background = dr::opaque<Float>(background);
+    if constexpr (dr::is_jit_v<Float>)
+        index_values = dr::load<Float>(values, count);
+    else
+        index_values.assign(values, values + count);
+}
+
 template <typename Float> void GridSampler<Float>::enable_counters() {
     m_counting = true;
     constexpr uint32_t n = (uint32_t) Counter::Count;
@@ -112,12 +121,33 @@ GridSampler<Float>::absolute(const Vector3i &voxel) const {
 }
 
 template <typename Float>
+Float GridSampler<Float>::indexed_value(const UInt32 &index, const Mask &active) const {
+    Mask stored = active & (index != 0u);
+    Float value;
+    if constexpr (dr::is_jit_v<Float>)
+        value = dr::gather<Float>(index_values, UInt32(index - 1u), stored);
+    else
+        value = stored ? index_values[index - 1u] : 0.f;
+    return dr::select(stored, value, index_background);
+}
+
+template <typename Float>
+template <uint32_t T, typename Buf>
+Float GridSampler<Float>::read_value(const Buf &buf, const UInt32 &address, const UInt32 &level,
+                                     const Coord<UInt32> &ijk, const Mask &active) const {
+    if constexpr (grid_type_traits<T>::type.codec == layout::LeafCodec::OnIndex)
+        return indexed_value(root_read_index<T>(buf, address, level, ijk, active), active);
+    else
+        return root_read_float<T>(buf, address, level, ijk, active);
+}
+
+template <typename Float>
 Float GridSampler<Float>::value_at(const Coord<UInt32> &ijk, const Mask &active) const {
     Float value = layout::visit_value_type<false>(grid_type, [&](auto type) {
         constexpr uint32_t T = decltype(type)::value;
         return reader.apply(words(), [&](const auto &buf, const auto &root) {
             AddressAndLevel<UInt32> al = value_address_and_level<T>(buf, root, ijk, active);
-            return root_read_float<T>(buf, al.address, al.level, ijk, active);
+            return read_value<T>(buf, al.address, al.level, ijk, active);
         });
     });
     return dr::minimum(value, max);
@@ -152,8 +182,8 @@ Float GridSampler<Float>::trilinear(const Vector3f &rel_, const Mask &active) co
                 weight = weight * (((corner >> k) & 1) ? w1[k] : w0[k]);
             Coord<UInt32> ijk = coord_add<UInt32>(c, corner & 1u, (corner >> 1) & 1u,
                                                   (corner >> 2) & 1u);
-            Float value = root_read_float<T>(words(), corners.address[corner],
-                                             corners.level[corner], ijk, active);
+            Float value = read_value<T>(words(), corners.address[corner],
+                                        corners.level[corner], ijk, active);
             sum = dr::fmadd(value, weight, sum);
         }
         return sum;

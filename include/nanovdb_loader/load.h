@@ -14,6 +14,7 @@
 #pragma once
 
 #include <nanovdb_loader/container.h>
+#include <nanovdb_loader/index_grid.h>
 #include <nanovdb_loader/majorants.h>
 #include <nanovdb_loader/reader_policy.h>
 #include <nanovdb_loader/spectral.h>
@@ -31,19 +32,35 @@ struct DecodedGrid {
     ValidatedGrid grid;                ///< a view of the caller's buffer
     ReaderPlan plan;
     std::vector<std::string> warnings; ///< from the value policy, to be shown
+    /// Index grids: the values grid.index_values() points into (owned here:
+    /// a moved DecodedGrid keeps them where they are), and where they came from
+    std::vector<float> index_values;
+    std::string index_note;
+    uint64_t grid_bytes = 0;           ///< of the grid in the buffer (an index
+                                       ///  grid's tree, without blind data)
 };
 
 /// Decodes `entry` of the file `path` into `dst` (capacity `dst_bytes` >=
 /// entry.grid_size; the rest is zeroed), validates it once, applies the
-/// value policy and plans the readers. Throws Error naming the file.
+/// value policy and plans the readers. An index grid's values come from its
+/// blind data (`blind`), which is then dropped from the grid
+/// (take_blind_values). Throws Error naming the file.
 DecodedGrid decode_grid(const std::string &path, const GridEntry &entry, void *dst,
-                        uint64_t dst_bytes, InvalidValues policy);
+                        uint64_t dst_bytes, InvalidValues policy,
+                        const BlindSelection &blind = {});
 
 /// The same for the grid `name` in memory (build.h's buffer), copied into
 /// `dst`: `label` names its source in errors, as a path would
 DecodedGrid decode_grid_bytes(const std::string &label, const std::string &name,
                               const void *src, uint64_t src_bytes, void *dst,
-                              uint64_t dst_bytes, InvalidValues policy);
+                              uint64_t dst_bytes, InvalidValues policy,
+                              const BlindSelection &blind = {});
+
+/// A decoded scalar grid made into an index grid (make_index_grid), written
+/// over it into `dst` (capacity `dst_bytes`; an index grid is smaller than
+/// its grid unless the grid has no leaves: 32 bytes more), validated with its
+/// values. An index grid is returned as it is.
+DecodedGrid to_index_grid(DecodedGrid grid, void *dst, uint64_t dst_bytes, InvalidValues policy);
 
 /// Where prepare_grid() takes a grid from: a file's entry (decode_grid) or
 /// a grid in memory (decode_grid_bytes)
@@ -76,6 +93,11 @@ struct PrepareOptions {
     /// Vec3f grids of a spectral variant: colours into coefficients (others
     /// ignore it)
     std::optional<SpectralConversion> spectral;
+    /// Make a scalar grid an index grid of its active values (to_index_grid):
+    /// the differentiable form of a volume
+    bool index_grid = false;
+    /// Index grids from files: the blind channel holding their values
+    BlindSelection blind;
 };
 
 /// A decoded grid and what a renderer needs to bound its lookups
@@ -100,10 +122,15 @@ struct PreparedGrid : DecodedGrid {
     SpectralScales scales;   ///< where the colours were converted
 };
 
-/// decode_grid / decode_grid_bytes into `dst`, then the bounds (max of the
-/// lookup box, per channel, per node, their mean) and, last, the spectral
-/// rewrite. Throws Error naming the source.
+/// decode_grid / decode_grid_bytes into `dst` (to_index_grid with
+/// options.index_grid), then the bounds (max of the lookup box, per channel,
+/// per node, their mean) and, last, the spectral rewrite. Throws Error
+/// naming the source.
 PreparedGrid prepare_grid(const GridSource &source, void *dst, uint64_t dst_bytes,
                           const PrepareOptions &options);
+
+/// The bounds of prepare_grid() (box, max, per node, mean) for a decoded
+/// grid: what an index grid's values need again after they change
+PreparedGrid prepare_bounds(DecodedGrid decoded, const PrepareOptions &options);
 
 } // namespace nanovdb_loader

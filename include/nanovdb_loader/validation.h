@@ -79,6 +79,19 @@ struct GridSummary {
     uint64_t active_voxel_count = 0;
 };
 
+/**
+ * The values of an index grid (OnIndex): value index i >= 1 reads
+ * values[i - 1], index 0 the background. They live outside the tree (a
+ * blind channel of the file, or an array the caller built): the caller owns
+ * them, and they must outlive the ValidatedGrid. The value policy may
+ * rewrite them (sanitize_values).
+ */
+struct IndexValues {
+    float *values = nullptr;
+    uint64_t count = 0;
+    float background = 0.f;
+};
+
 /// Every value a lookup can return (see "Which values" above), summarised
 struct ValueStats {
     static constexpr uint64_t NONE = std::numeric_limits<uint64_t>::max();
@@ -144,13 +157,17 @@ public:
     /// leaf array)
     uint64_t leaf_containing(uint64_t byte) const;
 
+    /// An index grid's values (count 0 for other grids)
+    const IndexValues &index_values() const { return m_index; }
+    bool is_index_grid() const { return m_index_grid; }
+
     /// The spectral rewrite (spectral.h) has turned its colours into
     /// coefficients: values(), leaf_min() and leaf_max() describe the colours
     bool holds_coefficients() const { return m_coefficients; }
 
 private:
-    friend ValidatedGrid validate_grid(const std::string &, void *, uint64_t);
-    friend ValidatedGrid validate_grid(const std::string &, const void *, uint64_t);
+    friend ValidatedGrid validate_grid(const std::string &, void *, uint64_t, IndexValues);
+    friend ValidatedGrid validate_grid(const std::string &, const void *, uint64_t, IndexValues);
     friend struct ValueRewriter;
     ValidatedGrid() = default;
 
@@ -164,14 +181,20 @@ private:
     std::vector<float> m_leaf_min, m_leaf_max;
     uint64_t m_leaf_size = 0;             ///< fixed leaf size (0: FpN)
     std::vector<uint64_t> m_leaf_offsets; ///< FpN only: each leaf's byte offset
+    IndexValues m_index;                  ///< index grids only
+    bool m_index_grid = false;
 };
 
 /// Validates a grid buffer (its first grid, when it holds several) and
 /// summarises it; throws Error, naming `path` and the problem. `data` must be
-/// 4-byte aligned (the traversal reads 32-bit words).
-ValidatedGrid validate_grid(const std::string &path, void *data, uint64_t bytes);
+/// 4-byte aligned (the traversal reads 32-bit words). An index grid (OnIndex)
+/// needs its values: every index it holds must have one (index <= count);
+/// each leaf's prefix sums must match its mask, as the device trusts them.
+ValidatedGrid validate_grid(const std::string &path, void *data, uint64_t bytes,
+                            IndexValues index = {});
 
 /// The same for a read-only buffer: sanitize_values() refuses the result.
-ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t bytes);
+ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t bytes,
+                            IndexValues index = {});
 
 } // namespace nanovdb_loader

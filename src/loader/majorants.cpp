@@ -40,7 +40,7 @@ public:
     /// per_channel: also the largest value of each channel (Vec3f)
     BoxMax(const ValidatedGrid &grid, const IndexBox &box, bool per_channel = false)
         : m_grid(grid), m_view(grid), m_box(box), m_buf(grid.data()),
-          m_codec(grid.summary().grid_type),
+          m_codec(grid.summary().grid_type, &grid.index_values()),
           m_per_channel(per_channel && m_codec.channels() > 1) {}
 
     /// The largest value of each channel (valid after run(); -Inf where none)

@@ -23,7 +23,7 @@ class MeanBound {
 public:
     MeanBound(const ValidatedGrid &grid, const NodeMajorants &maj, const IndexBox &box,
               float clamp)
-        : m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type), m_t(maj.layout),
+        : m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type, &grid.index_values()), m_t(maj.layout),
           m_v(maj.values), m_box(box), m_clamp(clamp) {}
 
     double run() {

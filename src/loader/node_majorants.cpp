@@ -60,7 +60,7 @@ struct Cover {
 class Builder {
 public:
     Builder(const ValidatedGrid &grid, int ring)
-        : m_grid(grid), m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type),
+        : m_grid(grid), m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type, &grid.index_values()),
           m_ring(uint32_t(std::clamp(ring, 1, 8))) {
         const GridSummary &s = grid.summary();
         const layout::GridTypeConstants &c = m_codec.constants();
@@ -233,7 +233,8 @@ private:
             float r = v;
             ring(1, eo, r);
             raise(M, r);
-            if (r > v)
+            // (an index grid's walk cannot read a tile's value, only R)
+            if (r > v || m_codec.indexed())
                 raise(R, r);
         }
         const size_t i = index(2, node);

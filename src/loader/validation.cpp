@@ -211,8 +211,8 @@ TreeRegions check_regions(const std::string &path, const uint8_t *buf, uint64_t 
 class TreeWalk {
 public:
     TreeWalk(const std::string &path, const TreeView &view, const uint8_t *buf,
-             const TreeRegions &g, const ValueCodec &codec)
-        : m_path(path), m_view(view), m_buf(buf), m_g(g), m_codec(codec) {}
+             const TreeRegions &g, const ValueCodec &codec, const IndexValues &index)
+        : m_path(path), m_view(view), m_buf(buf), m_g(g), m_codec(codec), m_index(index) {}
 
     /// The smallest and largest value of every leaf (NaN skipped), in leaf
     /// array order
@@ -267,6 +267,10 @@ private:
 
     /// A value outside the leaves (`channels` floats at byte `at`)
     void tile_value(uint64_t at) {
+        if (m_codec.indexed())
+            check_index(load<uint64_t>(m_buf + at), [&] {
+                return "the tile value index at byte " + std::to_string(at);
+            });
         float v[3] = { 0.f, 0.f, 0.f };
         m_codec.tile(m_buf + at, v);
         for (uint32_t k = 0; k < m_codec.channels(); ++k)
@@ -282,6 +286,8 @@ private:
         std::vector<float> decoded(layout::LEAF_TABLE_COUNT * channels);
         for (uint64_t n = 0; n < m_g.leaf.count; ++n) {
             const uint64_t leaf = m_view.node(0, n);
+            if (m_codec.indexed())
+                index_leaf(n, leaf);
             const float *values =
                 reinterpret_cast<const float *>(m_buf + leaf + m_view.level(0).table_off);
             if (m_codec.type().codec != layout::LeafCodec::Float32) {
@@ -296,6 +302,45 @@ private:
                     ? m_values.add_run<layout::LEAF_TABLE_COUNT>(values, key)
                     : m_values.add_run<layout::LEAF_TABLE_COUNT * 3>(values, key);
         }
+    }
+
+    /// Index grids: `index` must have a value (`who`: a callable naming it)
+    template <typename Who> void check_index(uint64_t index, const Who &who) const {
+        const IndexValues &iv = m_index;
+        if (index > iv.count)
+            fail(m_path, who() + " is " + std::to_string(index) + ", but the grid has " +
+                             std::to_string(iv.count) + " values (indices 1 to " +
+                             std::to_string(iv.count) + "; 0 is the background)");
+    }
+
+    /// An OnIndex leaf: its prefix sums match its mask (the device reads a
+    /// voxel's index from them), and its indices have values
+    void index_leaf(uint64_t n, uint64_t leaf) const {
+        const uint8_t *p = m_buf + leaf;
+        const layout::GridTypeConstants &c = layout::GRID_TYPE_CONSTANTS_ONINDEX;
+        const uint64_t first = load<uint64_t>(p + c.leaf_off_table),
+                       prefix = load<uint64_t>(p + c.leaf_off_table +
+                                               layout::ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM);
+        auto who = [&] {
+            return "OnIndex leaf " + std::to_string(n) + " (byte " + std::to_string(leaf) + ")";
+        };
+        uint64_t active = 0;
+        for (uint32_t w = 0; w < 8; ++w) {
+            if (w > 0 && ((prefix >> (9 * (w - 1))) & 511u) != active)
+                fail(m_path, who() + " has prefix sum " +
+                                 std::to_string((prefix >> (9 * (w - 1))) & 511u) +
+                                 " before mask word " + std::to_string(w) + ", but its mask has " +
+                                 std::to_string(active) + " active voxels there");
+            active += uint64_t(__builtin_popcountll(load<uint64_t>(p + layout::LEAF_OFF_VALUE_MASK + 8 * w)));
+        }
+        if (active == 0)
+            return;
+        if (first == 0)
+            fail(m_path, who() + " has active voxels but first value index 0 (the background's)");
+        check_index(first + (active - 1), [&] {
+            return who() + "'s last value index (first " + std::to_string(first) + " + " +
+                   std::to_string(active) + " active voxels - 1)";
+        });
     }
 
     /// `child` (relative to `from`) must point exactly at a node of `level`.
@@ -335,6 +380,7 @@ private:
     const uint8_t *m_buf;
     const TreeRegions &m_g;
     const ValueCodec &m_codec;
+    const IndexValues &m_index;
     ValueAccumulator m_values;
 };
 
@@ -385,13 +431,31 @@ uint64_t ValidatedGrid::leaf_containing(uint64_t byte) const {
                     m_leaf_offsets.begin()) - 1;
 }
 
-ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t bytes) {
+ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t bytes,
+                            IndexValues index) {
     // Read only here; the const_cast is undone by m_writable = false
     uint8_t *buf = const_cast<uint8_t *>(static_cast<const uint8_t *>(data));
     std::string name;
     const uint64_t end = check_header(path, buf, bytes, name);
-    const ValueCodec codec(load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE));
+    const uint32_t grid_type = load<uint32_t>(buf + layout::GRID_OFF_GRID_TYPE);
+    const bool indexed = grid_type == layout::GRID_TYPE_ONINDEX;
+    if (indexed) {
+        if (index.count != 0 && index.values == nullptr)
+            fail(path, "index grid \"" + name + "\": no values were given for its indices");
+        if (index.count >= (uint64_t(1) << 32) - 1)
+            fail(path, "index grid \"" + name + "\" has " + std::to_string(index.count) +
+                           " values: 2^32 - 1 or more, beyond the lookups' 32-bit indices");
+    } else {
+        index = IndexValues{};
+    }
+    const ValueCodec codec(grid_type, &index);
     TreeRegions regions = check_regions(path, buf, end, codec);
+    if (indexed && load<uint64_t>(buf + regions.root +
+                                  layout::GRID_TYPE_CONSTANTS_ONINDEX.root_off_background) != 0)
+        fail(path, "index grid \"" + name + "\": the background's value index is " +
+                       std::to_string(load<uint64_t>(buf + regions.root +
+                                                     layout::GRID_TYPE_CONSTANTS_ONINDEX.root_off_background)) +
+                       ", not 0");
 
     // The grid's geometry first, for the tree view the walk reads through
     ValidatedGrid grid;
@@ -402,9 +466,11 @@ ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t 
     grid.m_data = buf;
     grid.m_bytes = bytes;
     grid.m_writable = false;
+    grid.m_index = index;
+    grid.m_index_grid = indexed;
     {
         const TreeView view(grid);
-        TreeWalk walk(path, view, buf, regions, codec);
+        TreeWalk walk(path, view, buf, regions, codec, grid.m_index);
         grid.m_values = walk.run();
         grid.m_leaf_min = std::move(walk.leaf_min);
         grid.m_leaf_max = std::move(walk.leaf_max);
@@ -412,8 +478,9 @@ ValidatedGrid validate_grid(const std::string &path, const void *data, uint64_t 
     return grid;
 }
 
-ValidatedGrid validate_grid(const std::string &path, void *data, uint64_t bytes) {
-    ValidatedGrid grid = validate_grid(path, static_cast<const void *>(data), bytes);
+ValidatedGrid validate_grid(const std::string &path, void *data, uint64_t bytes,
+                            IndexValues index) {
+    ValidatedGrid grid = validate_grid(path, static_cast<const void *>(data), bytes, index);
     grid.m_writable = true;
     return grid;
 }

@@ -15,6 +15,7 @@
 #include "detail.h"
 
 #include <nanovdb_drjit/layout.h>
+#include <nanovdb_loader/validation.h>
 
 #include <algorithm>
 #include <cmath>
@@ -69,10 +70,35 @@ inline uint16_t float_to_half(float f) {
     return uint16_t(sign | uint16_t((rebased + 0xfffu + lsb) >> 13));
 }
 
+/// OnIndex leaves: the value index of voxel n (0..511) of the leaf at
+/// `leaf`, as PNanoVDB's pnanovdb_leaf_onindex_get_value_index (0: inactive)
+inline uint64_t onindex_leaf_index(const uint8_t *leaf, uint32_t n) {
+    const layout::GridTypeConstants &c = layout::GRID_TYPE_CONSTANTS_ONINDEX;
+    const uint32_t word = n >> 6;
+    const uint64_t mask = load<uint64_t>(leaf + layout::LEAF_OFF_VALUE_MASK + 8 * word),
+                   bit = uint64_t(1) << (n & 63);
+    if (!(mask & bit))
+        return 0;
+    uint64_t sum = uint64_t(__builtin_popcountll(mask & (bit - 1)));
+    if (word > 0)
+        sum += (load<uint64_t>(leaf + c.leaf_off_table + layout::ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM) >>
+                (9 * (word - 1))) & 511u;
+    return load<uint64_t>(leaf + c.leaf_off_table) + sum;
+}
+
 class ValueCodec {
 public:
-    explicit ValueCodec(uint32_t grid_type)
-        : m_t(*layout::value_type(grid_type)), m_c(*m_t.constants) {}
+    /// `index`: an index grid's values (required for OnIndex, else unused)
+    explicit ValueCodec(uint32_t grid_type, const IndexValues *index = nullptr)
+        : m_t(*layout::value_type(grid_type)), m_c(*m_t.constants), m_index(index) {}
+
+    bool indexed() const { return m_t.codec == layout::LeafCodec::OnIndex; }
+    /// Index grids: the value of value index i (<= count: validation checks)
+    float indexed_value(uint64_t i) const {
+        return i == 0 ? m_index->background : m_index->values[i - 1];
+    }
+    /// ... and where it is stored (nullptr: the background)
+    float *indexed_slot(uint64_t i) const { return i == 0 ? nullptr : m_index->values + (i - 1); }
 
     const layout::ValueType &type() const { return m_t; }
     const layout::GridTypeConstants &constants() const { return m_c; }
@@ -84,11 +110,15 @@ public:
 
     /// Bytes of one tile value (root tile, internal table entry, background)
     uint32_t tile_bytes() const {
-        return m_t.codec == layout::LeafCodec::Half ? 2u : 4u * m_t.channels;
+        return m_t.codec == layout::LeafCodec::Half ? 2u : indexed() ? 8u : 4u * m_t.channels;
     }
 
     /// The tile value at p: `channels` floats into out
     void tile(const uint8_t *p, float *out) const {
+        if (indexed()) {
+            out[0] = indexed_value(load<uint64_t>(p));
+            return;
+        }
         if (m_t.codec == layout::LeafCodec::Half) {
             out[0] = half_to_float(load<uint16_t>(p));
             return;
@@ -124,6 +154,7 @@ public:
     void leaf_value(const uint8_t *leaf, uint32_t n, float *out) const {
         const uint8_t *table = leaf + m_c.leaf_off_table;
         switch (m_t.codec) {
+            case layout::LeafCodec::OnIndex: out[0] = indexed_value(onindex_leaf_index(leaf, n)); return;
             case layout::LeafCodec::Float32: out[0] = load<float>(table + 4 * n); return;
             case layout::LeafCodec::Half: out[0] = half_to_float(load<uint16_t>(table + 2 * n)); return;
             case layout::LeafCodec::Vec3f:
@@ -167,6 +198,7 @@ public:
 private:
     const layout::ValueType &m_t;
     const layout::GridTypeConstants &m_c;
+    const IndexValues *m_index;
 };
 
 } // namespace nanovdb_loader::detail

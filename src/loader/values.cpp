@@ -194,12 +194,18 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
     };
     ValueAccumulator after;
     const GridSummary &s = grid.summary();
-    const ValueCodec codec(s.grid_type);
+    const ValueCodec codec(s.grid_type, &grid.index_values());
     const uint32_t channels = codec.channels();
     const bool half = codec.type().codec == layout::LeafCodec::Half;
-    // Writes v at p as the type stores it (NaN != 0 too: compare bits)
+    // Writes v at p as the type stores it (NaN != 0 too: compare bits);
+    // index grids: into their values, at the index stored at p
     auto store = [&](uint8_t *p, float v) {
-        if (half) {
+        if (codec.indexed()) {
+            if (float *slot = codec.indexed_slot(load<uint64_t>(p)))
+                *slot = v;
+            else
+                ValueRewriter::set_index_background(grid, v);
+        } else if (half) {
             const uint16_t h = float_to_half(v); // v is a half or a replacement
             std::memcpy(p, &h, 2);                // (finite_max/min of halves, 0)
         } else {
@@ -231,7 +237,12 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
                 continue;
             changed = true;
             values[k] = w;
-            if (!codec.quantized())
+            if (codec.indexed()) {
+                if (float *slot = codec.indexed_slot(onindex_leaf_index(leaf, k)))
+                    *slot = w;
+                else
+                    ValueRewriter::set_index_background(grid, w);
+            } else if (!codec.quantized())
                 store(leaf + codec.leaf_value_offset(k / channels) + 4 * (k % channels), w);
         }
         if (changed && codec.quantized()) {

@@ -315,6 +315,11 @@ public:
                        "tree is traversed)", m_filename, props.get<bool>("accel"));
         m_raw = props.get<bool>("raw", false);
         const bool count_lookups = props.get<bool>("count_lookups", false);
+        // Differentiable values: the grid becomes an index grid (its tree)
+        // and one Float array of its active values, exposed as "data"
+        m_differentiable = props.get<bool>("differentiable", false);
+        m_blind.channel = std::string(props.get<std::string_view>("blind_channel", ""));
+        m_blind.component = (uint32_t) props.get<uint32_t>("blind_component", 0);
 
         // The grid (a second one for 6 channels: channels 3 to 5)
         nanovdb_loader::GridSummary summary;
@@ -536,6 +541,13 @@ public:
         put("majorant_bytes", m_trav.majorant_bytes);
         put("spectral_scale_bytes", m_trav.scale_bytes);
         put("wrap_clamp", m_clamp);
+        m_trav.value_bytes = double(m_facts.value_bytes);
+        put("value_bytes", m_trav.value_bytes);
+        // An index grid's values (index i + 1 at i; index_grid.h gives the
+        // order), differentiable on the JIT backends
+        if constexpr (dr::is_jit_v<Float>)
+            if (m_index_tree_bytes != 0)
+                cb->put("data", m_sampler.index_values, ParamFlags::Differentiable);
         if (m_sampler.counting()) {
             std::vector<uint64_t> counts = m_sampler.counter_values();
             for (size_t i = 0; i < counts.size(); ++i) {
@@ -767,6 +779,7 @@ private:
         float max = 0.f, grid_max = 0.f;   ///< lookups' bound; the largest stored value
         float max3[3] = { 0.f, 0.f, 0.f }; ///< per channel (Vec3f)
         size_t grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0;
+        size_t value_bytes = 0;            ///< an index grid's values
         ScalarFloat majorant_ratio = 1.f;  ///< mean local bound / max()
     };
 
@@ -883,7 +896,7 @@ private:
                                      const std::optional<nanovdb_loader::IndexBox> &volume_box,
                                      Sampler &s, GridFacts &facts, bool six) {
         namespace loader = nanovdb_loader;
-        HostBlock host = allocate(bytes, facts);
+        HostBlock host = allocate(bytes + (m_differentiable ? 64 : 0), facts);
         loader::PrepareOptions options;
         options.invalid_values = m_invalid_values;
         options.volume_box = volume_box;
@@ -909,10 +922,36 @@ private:
                     return scale;
                 },
                 2.f };
+        options.index_grid = m_differentiable && !six;
+        options.blind = m_blind;
         loader::PreparedGrid g = loader::prepare_grid(source, host.get(), facts.backend_bytes,
                                                       options);
         for (const std::string &warning : g.warnings)
             Log(Warn, "%s", warning);
+        if (g.grid.is_index_grid()) {
+            if (six)
+                Throw("nanovdbvolume: \"%s\": index grids hold one channel; a 6-channel "
+                      "volume needs two Vec3f grids", m_filename);
+            // The index grid's tree is smaller than the grid it was made
+            // from, or than the file's grid with its blind data: a block of
+            // its size, so that the backend holds the tree and the values once
+            HostBlock fitted = allocate(g.grid_bytes, facts);
+            std::memcpy(fitted.get(), host.get(), g.grid_bytes);
+            std::memset((uint8_t *) fitted.get() + g.grid_bytes, 0,
+                        facts.backend_bytes - g.grid_bytes);
+            host = std::move(fitted);
+            Log(Info, "nanovdbvolume: \"%s\": grid \"%s\" as an index grid: %s, %zu bytes of "
+                      "tree and %zu of values%s", m_filename, g.grid.summary().name,
+                g.index_note, g.grid_bytes, g.index_values.size() * sizeof(float),
+                dr::is_jit_v<Float> ? " (differentiable: \"data\")" : "");
+            m_index_options = options;
+            m_index_volume_box = volume_box;
+            if constexpr (dr::is_cuda_v<Float>) // (the tree stays on the device: a host copy
+                m_index_tree_host.assign((const uint8_t *) host.get(), // for parameters_changed)
+                                         (const uint8_t *) host.get() + g.grid_bytes);
+            m_index_tree_bytes = g.grid_bytes;
+            facts.value_bytes = g.index_values.size() * sizeof(float);
+        }
         const loader::GridSummary &summary = g.grid.summary();
         facts.grid_type = summary.grid_type;
         facts.grid_class = summary.grid_class;
@@ -938,6 +977,87 @@ private:
         facts.majorant_ratio = facts.max > 0.f ? ScalarFloat(set.mean_bound / facts.max) : 1.f;
         return summary;
     }
+
+    /// An index grid's tree in host memory: the block itself (scalar, LLVM:
+    /// the backend reads it in place), or the copy kept for CUDA
+    const uint8_t *index_tree_host() const {
+        if constexpr (dr::is_cuda_v<Float>)
+            return m_index_tree_host.data();
+        else if constexpr (dr::is_jit_v<Float>)
+            return (const uint8_t *) dr::detach(m_sampler.grid).data();
+        else
+            return (const uint8_t *) m_sampler.grid.get();
+    }
+
+    /**
+     * An index grid's values changed (params.update() after an optimizer
+     * step): the value policy on the backend, then max() and the per-node
+     * majorants again, from the values and the tree in host memory (LLVM
+     * and scalar read both in place; CUDA copies the values to the host, the
+     * tree's copy was kept at load). The values are neither copied nor
+     * moved on the backend.
+     */
+    void update_index_bounds() {
+        namespace loader = nanovdb_loader;
+        auto &values = m_sampler.index_values;
+        size_t count;
+        const float *host_values;
+        std::vector<float> copy;
+        if constexpr (dr::is_jit_v<Float>) {
+            if (m_invalid_values == loader::InvalidValues::Clamp) {
+                // NaN and negatives to 0, +Inf to the largest finite value
+                Float v = values;
+                Mask bad = dr::isnan(v) | (v < 0.f);
+                v = dr::select(bad, 0.f, v);
+                Float finite_max = dr::max(dr::select(dr::isinf(v), 0.f, v));
+                values = dr::select(dr::isinf(v), finite_max, v);
+            }
+            dr::eval(values);
+            dr::sync_thread();
+            count = dr::width(values);
+            if constexpr (dr::is_cuda_v<Float>) {
+                copy.resize(count);
+                dr::store(copy.data(), dr::detach(values));
+                host_values = copy.data();
+            } else {
+                host_values = dr::detach(values).data();
+            }
+        } else {
+            count = values.size();
+            host_values = values.data();
+        }
+        try {
+            loader::IndexValues index{ const_cast<float *>(host_values), count,
+                                       m_background_host };
+            loader::DecodedGrid d{ loader::validate_grid(m_filename, (const void *) index_tree_host(),
+                                                         m_index_tree_bytes, index),
+                                   {}, {}, {}, {}, m_index_tree_bytes };
+            d.warnings = loader::apply_value_policy(d.grid, m_grid_name, m_invalid_values);
+            for (const std::string &warning : d.warnings)
+                Log(Warn, "%s", warning);
+            d.plan = loader::plan_readers(d.grid);
+            loader::PreparedGrid g = loader::prepare_bounds(std::move(d), m_index_options);
+            nanovdb_mitsuba::SamplerSetup set =
+                nanovdb_mitsuba::set_up_bounds(m_sampler, g, m_clamp, m_index_volume_box);
+            m_facts.max = set.max;
+            for (int k = 0; k < 3; ++k)
+                m_facts.max3[k] = set.max3[k];
+            m_facts.grid_max = g.grid_max;
+            m_facts.majorant_ratio = m_facts.max > 0.f ? ScalarFloat(set.mean_bound / m_facts.max) : 1.f;
+        } catch (const loader::Error &e) {
+            Throw("nanovdbvolume: after an update of \"data\": %s", e.what());
+        }
+    }
+
+public:
+    void parameters_changed(const std::vector<std::string> &keys = {}) override {
+        if (m_index_tree_bytes != 0 &&
+            (keys.empty() || std::find(keys.begin(), keys.end(), "data") != keys.end()))
+            update_index_bounds();
+        Base::parameters_changed(keys);
+    }
+
+private:
 
     /// The active index box [min, max] (inclusive), or a dense source's
     /// whole box, becomes the volume's extent. An empty grid reads as the
@@ -1098,12 +1218,20 @@ private:
     nanovdb_loader::InvalidValues m_invalid_values = nanovdb_loader::InvalidValues::Error;
     std::string m_filename, m_grid_name;
     uint32_t m_grid_index = 0xffffffffu; // in the file's grids (memory sources: none)
+    // Index grids (differentiable, or OnIndex in the file)
+    bool m_differentiable = false;     // make the grid an index grid
+    nanovdb_loader::BlindSelection m_blind; // a file's index grid: its values' channel
+    size_t m_index_tree_bytes = 0;     // 0: not an index grid
+    nanovdb_loader::PrepareOptions m_index_options; // to bound it again
+    std::optional<nanovdb_loader::IndexBox> m_index_volume_box;
+    std::vector<uint8_t> m_index_tree_host; // CUDA: the tree, for parameters_changed
     /// traverse()'s copies of what it exposes
     struct {
         uint32_t grid_type = 0, grid_class = 0, channels = 1;
         ScalarPoint3f bbox_min, bbox_max;
         ScalarFloat max = 0.f;
-        double grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0;
+        double grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0,
+               value_bytes = 0;
         double counters[(uint32_t) nanovdb_drjit::Counter::Count] = {};
     } m_trav;
 

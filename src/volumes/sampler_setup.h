@@ -33,6 +33,10 @@ struct SamplerSetup {
     size_t majorant_bytes = 0, scale_bytes = 0;
 };
 
+template <typename Float>
+SamplerSetup set_up_bounds(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader::PreparedGrid &g,
+                           bool clamp, const std::optional<nanovdb_loader::IndexBox> &volume_box);
+
 /**
  * Sets `s` up from `g` and takes over `host` (the block prepare_grid wrote
  * into, `word_count` 32-bit words): the reader of the plan, the per-node
@@ -51,12 +55,37 @@ SamplerSetup set_up_sampler(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader
     using UInt32 = drjit::uint32_array_t<Float>;
     const loader::GridSummary &summary = g.grid.summary();
     const bool vec3 = summary.grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
+    s.reader = nanovdb_drjit::Reader<UInt32>::from_plan(g.plan);
+    SamplerSetup out = set_up_bounds(s, g, clamp, volume_box);
+    if (vec3 && !g.scales.values.empty()) {
+        out.scale_bytes = g.scales.values.size() * sizeof(float);
+        s.set_scales(std::move(g.scales.values), g.scales.tiles_begin, g.scales.leaf_begin_word,
+                     g.scales.tile_begin_word);
+    }
+    if (g.grid.is_index_grid())
+        s.set_index_values(g.index_values.data(), g.index_values.size(),
+                           g.grid.index_values().background);
+    s.set_grid(std::move(host), word_count);
+    return out;
+}
+
+/**
+ * The bounds of `g` in `s`: max() (per channel) and the per-node majorants
+ * of the walk; at set-up, and again when an index grid's values change
+ * (the plugin's parameters_changed)
+ */
+template <typename Float>
+SamplerSetup set_up_bounds(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader::PreparedGrid &g,
+                           bool clamp, const std::optional<nanovdb_loader::IndexBox> &volume_box) {
+    namespace loader = nanovdb_loader;
+    using UInt32 = drjit::uint32_array_t<Float>;
+    const loader::GridSummary &summary = g.grid.summary();
+    const bool vec3 = summary.grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
     SamplerSetup out;
     out.max = g.max;
     for (int k = 0; k < 3; ++k)
         out.max3[k] = vec3 ? g.max3[k] : g.max;
 
-    s.reader = nanovdb_drjit::Reader<UInt32>::from_plan(g.plan);
     // Per-node bounds for majorant tracking, raised by 2^-20 for the few ulps
     // by which rounded trilinear weights can overshoot
     for (int k = 0; k < 3; ++k)
@@ -78,12 +107,6 @@ SamplerSetup set_up_sampler(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader
     out.majorant_bytes = (size_t) g.majorants.bytes();
     out.mean_bound = g.spectral_factor * g.mean_bound;
     s.set_bounds(out.max, out.max3);
-    if (vec3 && !g.scales.values.empty()) {
-        out.scale_bytes = g.scales.values.size() * sizeof(float);
-        s.set_scales(std::move(g.scales.values), g.scales.tiles_begin, g.scales.leaf_begin_word,
-                     g.scales.tile_begin_word);
-    }
-    s.set_grid(std::move(host), word_count);
     return out;
 }
 
