@@ -90,6 +90,17 @@ template <typename Float> void GridSampler<Float>::enable_counters() {
 //  Lookups
 // ---------------------------------------------------------------------------
 
+/// A lookup clamped to max(): the clamp is for the majorant (a few ulps of
+/// rounded weights, or values beyond the volume's box), not part of the
+/// function, so under AD its derivative is the unclamped lookup's (as
+/// gridvolume's, which has no clamp): value + detach(min(value, max) - value)
+template <typename T, typename M> DRJIT_INLINE T clamp_to_max(const T &value, const M &max) {
+    if constexpr (dr::is_diff_v<T>)
+        return value + dr::detach(dr::minimum(value, max) - value);
+    else
+        return dr::minimum(value, max);
+}
+
 template <typename Float>
 typename GridSampler<Float>::Vector3i
 GridSampler<Float>::clamp_voxel(const Vector3i &voxel) const {
@@ -150,7 +161,7 @@ Float GridSampler<Float>::value_at(const Coord<UInt32> &ijk, const Mask &active)
             return read_value<T>(buf, al.address, al.level, ijk, active);
         });
     });
-    return dr::minimum(value, max);
+    return clamp_to_max(value, max);
 }
 
 template <typename Float>
@@ -193,7 +204,7 @@ Float GridSampler<Float>::trilinear(const Vector3f &rel_, const Mask &active) co
     // level set whose values sit at its maximum); and corners outside the
     // volume's box may hold more than max(). A majorant must bound every
     // lookup, so clamp.
-    return dr::minimum(result, max);
+    return clamp_to_max(result, max);
 }
 
 template <typename Float>
@@ -237,7 +248,7 @@ template <typename Float>
 typename GridSampler<Float>::Vector3f
 GridSampler<Float>::nearest3(const Vector3i &voxel, const Mask &active) const {
     count(Counter::Lookup, active);
-    return dr::minimum(read3(address3(voxel, active).address, active), max3);
+    return clamp_to_max(read3(address3(voxel, active).address, active), max3);
 }
 
 template <typename Float>
@@ -268,7 +279,7 @@ GridSampler<Float>::trilinear3(const Vector3f &rel, const Mask &active) const {
     Vector3f sum(0.f);
     for (uint32_t corner = 0; corner < 8; ++corner)
         sum = dr::fmadd(read3(s.corners.address[corner], active), s.weight[corner], sum);
-    return dr::minimum(sum, max3);
+    return clamp_to_max(sum, max3);
 }
 
 template <typename Float>

@@ -377,6 +377,7 @@ public:
         if (props.has_property("max_value")) {
             ScalarFloat given = props.get<ScalarFloat>("max_value");
             if (given >= max()) {
+                m_max_value_given = given;
                 m_facts.max = given;
                 for (int k = 0; k < 3; ++k)
                     m_facts.max3[k] = std::max(m_facts.max3[k], given);
@@ -1037,6 +1038,8 @@ private:
                 Log(Warn, "%s", warning);
             d.plan = loader::plan_readers(d.grid);
             loader::PreparedGrid g = loader::prepare_bounds(std::move(d), m_index_options);
+            // A max_value above the values stays (gridvolume keeps it too)
+            g.max = std::max(g.max, m_max_value_given);
             nanovdb_mitsuba::SamplerSetup set =
                 nanovdb_mitsuba::set_up_bounds(m_sampler, g, m_clamp, m_index_volume_box);
             m_facts.max = set.max;
@@ -1220,6 +1223,7 @@ private:
     uint32_t m_grid_index = 0xffffffffu; // in the file's grids (memory sources: none)
     // Index grids (differentiable, or OnIndex in the file)
     bool m_differentiable = false;     // make the grid an index grid
+    ScalarFloat m_max_value_given = 0.f; // max_value, kept after updates
     nanovdb_loader::BlindSelection m_blind; // a file's index grid: its values' channel
     size_t m_index_tree_bytes = 0;     // 0: not an index grid
     nanovdb_loader::PrepareOptions m_index_options; // to bound it again
