@@ -23,7 +23,13 @@
       - the same on Fp8, FpN, Half and Vec3f versions of four grids
         (tests/typed_grids.h), read by PNanoVDB's per-type readers (the
         hand walk, written against NanoVDB's float node structs, is left out
-        there).
+        there);
+      - the same on index grids (OnIndex) made from four grids, whose values
+        were then changed as an optimizer step changes them (scaled at
+        random, and one raised 100x above the old maximum) and their
+        majorants recomputed as the plugin's parameters_changed does: read
+        through the index grid's lookups (tests/test_sampler.cpp checks
+        those against NanoVDB's accessor).
 */
 
 #define PNANOVDB_C
@@ -32,6 +38,7 @@
 
 #include <nanovdb_drjit/fast_readers.h>
 #include <nanovdb_drjit/majorant_walk.h>
+#include <nanovdb_loader/index_grid.h>
 #include <nanovdb_loader/majorants.h>
 #include <nanovdb_loader/reader_policy.h>
 #include <nanovdb_loader/validation.h>
@@ -71,6 +78,8 @@ struct WalkGrid {
     loader::NodeMajorants majorants;
     int32_t base[3];
     int32_t lo[3], hi[3]; ///< the index box rays aim at
+    std::vector<float> index_values; ///< index grids: the values
+    float index_background = 0.f;
 };
 
 WalkGrid make_walk_grid(const std::string &name, Handle handle,
@@ -92,6 +101,46 @@ WalkGrid make_walk_grid(const std::string &name, Handle handle,
     g.plan = loader::plan_readers(v);
     g.majorants = loader::node_majorants(v);
     const loader::GridSummary &s = v.summary();
+    for (int a = 0; a < 3; ++a) {
+        g.lo[a] = s.empty ? 0 : s.bbox_min[a];
+        g.hi[a] = s.empty ? 0 : s.bbox_max[a];
+        g.base[a] = int32_t(uint32_t(g.lo[a]) & ~4095u);
+    }
+    return g;
+}
+
+/// `handle` made an index grid, its values then changed as an optimizer
+/// step might (each scaled by a random factor in [0, 3), one raised to 100x
+/// the old maximum), and its majorants computed from the new values (as
+/// the plugin's parameters_changed computes them)
+WalkGrid make_index_walk_grid(const std::string &name, Handle handle) {
+    std::vector<uint32_t> words((handle.size() + 3) / 4);
+    std::memcpy(words.data(), handle.data(), handle.size());
+    loader::ValidatedGrid v = loader::validate_grid(name, words.data(), handle.size());
+    loader::MadeIndexGrid made = loader::make_index_grid(v);
+    WalkGrid g;
+    g.name = name + " (index grid, updated)";
+    g.grid_type = ndr::layout::GRID_TYPE_ONINDEX;
+    g.words.resize((made.bytes.size() + 3) / 4);
+    std::memcpy(g.words.data(), made.bytes.data(), made.bytes.size());
+    g.index_values = std::move(made.values.values);
+    g.index_background = made.values.background;
+    std::mt19937_64 rng(23);
+    std::uniform_real_distribution<float> u(0.f, 3.f);
+    float old_max = 0.f;
+    for (float &x : g.index_values) {
+        old_max = std::max(old_max, x);
+        x *= u(rng);
+    }
+    if (!g.index_values.empty())
+        g.index_values[g.index_values.size() / 2] = 100.f * std::max(old_max, 1.f);
+    g.handle = std::move(handle);
+    loader::ValidatedGrid iv = loader::validate_grid(
+        g.name, g.words.data(), made.bytes.size(),
+        loader::IndexValues{ g.index_values.data(), g.index_values.size(), g.index_background });
+    g.plan = loader::plan_readers(iv);
+    g.majorants = loader::node_majorants(iv);
+    const loader::GridSummary &s = iv.summary();
     for (int a = 0; a < 3; ++a) {
         g.lo[a] = s.empty ? 0 : s.bbox_min[a];
         g.hi[a] = s.empty ? 0 : s.bbox_max[a];
@@ -129,6 +178,9 @@ const std::vector<WalkGrid> &walk_grids() {
                 nvdb_test::TypedGrid t = nvdb_test::make_typed_grid(name, type);
                 out.push_back(make_walk_grid(name, nvdb_test::make_nano_grid(name), &t));
             }
+        for (const char *name : { "fog_sphere", "noisy_cloud", "lower_tiles", "upper_tiles" })
+            out.push_back(make_index_walk_grid(name, nvdb_test::make_nano_grid(name)));
+        out.push_back(make_index_walk_grid("mixed_tiles", mixed_tiles()));
         return out;
     }();
     return grids;
@@ -217,12 +269,23 @@ struct Reference {
     pnanovdb_buf_t buf;
     pnanovdb_root_handle_t root;
     uint32_t type;
-    explicit Reference(const WalkGrid &g) : type(g.grid_type) {
+    const WalkGrid *grid;
+    explicit Reference(const WalkGrid &g) : type(g.grid_type), grid(&g) {
         buf.data = const_cast<uint32_t *>(g.words.data());
         pnanovdb_grid_handle_t grid = { pnanovdb_address_null() };
         root = pnanovdb_tree_get_root(buf, pnanovdb_grid_get_tree(buf, grid));
     }
     float value(int64_t i, int64_t j, int64_t k) const {
+        if (type == ndr::layout::GRID_TYPE_ONINDEX) { // (beyond PNanoVDB 32.4): the translation's index
+            constexpr uint32_t T = ndr::layout::GRID_TYPE_ONINDEX;
+            const ndr::Coord<uint32_t> c{ int32_t(uint32_t(i)), int32_t(uint32_t(j)), int32_t(uint32_t(k)) };
+            const uint32_t index = ndr::Reader<uint32_t>::from_plan(grid->plan.faithful()).apply(
+                grid->words.data(), [&](const auto &b, const auto &r) {
+                    ndr::AddressAndLevel<uint32_t> al = ndr::value_address_and_level<T>(b, r, c, true);
+                    return ndr::root_read_index<T>(b, al.address, al.level, c, true);
+                });
+            return index == 0 ? grid->index_background : grid->index_values[index - 1];
+        }
         pnanovdb_coord_t ijk = { int32_t(uint32_t(i)), int32_t(uint32_t(j)), int32_t(uint32_t(k)) };
         pnanovdb_uint32_t level;
         const pnanovdb_address_t a =

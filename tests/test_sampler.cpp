@@ -187,19 +187,22 @@ struct Prepared {
     std::unique_ptr<loader::PreparedGrid> grid; ///< a view of `block`
 };
 
-/// nanovdbvolume's prepare_grid call (`ring`: the plugin's !nearest && !clamp)
-const Prepared &prepared(const Source &src, int ring) {
-    static std::map<std::pair<const Source *, int>, std::unique_ptr<Prepared>> memo;
-    std::unique_ptr<Prepared> &p = memo[{ &src, ring }];
+/// nanovdbvolume's prepare_grid call (`ring`: the plugin's !nearest && !clamp;
+/// `index_grid`: differentiable=true, the grid made an index grid)
+const Prepared &prepared(const Source &src, int ring, bool index_grid = false) {
+    static std::map<std::tuple<const Source *, int, bool>, std::unique_ptr<Prepared>> memo;
+    std::unique_ptr<Prepared> &p = memo[{ &src, ring, index_grid }];
     if (!p) {
         p = std::make_unique<Prepared>();
-        p->backend_bytes = size_t((src.bytes + 63) / 64 * 64);
+        // (an index grid of a grid without leaves is 32 bytes larger)
+        p->backend_bytes = size_t((src.bytes + 64 + 63) / 64 * 64);
         void *ptr = nullptr;
         REQUIRE(posix_memalign(&ptr, 64, p->backend_bytes) == 0);
         p->block.reset((uint32_t *) ptr);
         loader::PrepareOptions options;
         options.ring = ring;
         options.majorant_ring = std::max(ring, 1);
+        options.index_grid = index_grid;
         p->grid = std::make_unique<loader::PreparedGrid>(loader::prepare_grid(
             loader::GridSource::memory("test_sampler", src.label, src.words.data(), src.bytes),
             p->block.get(), p->backend_bytes, options));
@@ -216,12 +219,13 @@ const Prepared &prepared(const Source &src, int ring) {
  * trilinear, 2 for tricubic). No
  * spectral rewrite (RGB variants).
  */
-template <typename Float> Loaded<Float> load(const Source &src, bool clamp, int ring) {
+template <typename Float>
+Loaded<Float> load(const Source &src, bool clamp, int ring, bool index_grid = false) {
     using HostBlock = typename ndr::GridSampler<Float>::HostBlock;
     Loaded<Float> l;
     ndr::GridSampler<Float> &s = l.sampler;
 
-    const Prepared &p = prepared(src, ring);
+    const Prepared &p = prepared(src, ring, index_grid);
     const size_t backend_bytes = p.backend_bytes;
     void *ptr = nullptr;
     REQUIRE(posix_memalign(&ptr, 64, backend_bytes) == 0);
@@ -673,9 +677,50 @@ template <typename Float> void check_scalar_lookups() {
     }
 }
 
+/// Index grids (differentiable=true): every scalar source made an index
+/// grid reads as the grid itself, lane for lane and bit for bit (the grid's
+/// lookups are checked against PNanoVDB above)
+template <typename Float> void check_index_lookups() {
+    init_backend<Float>();
+    for (const Source &src : scalar_sources()) {
+        SUBCASE(src.label.c_str()) {
+            for (bool clamp : { false, true }) {
+                Loaded<Float> grid = load<Float>(src, clamp, !clamp),
+                              index = load<Float>(src, clamp, !clamp, true);
+                CHECK(index.grid_type == ndr::layout::GRID_TYPE_ONINDEX);
+                CHECK(index.max == grid.max);
+                const loader::PreparedGrid &pg = *prepared(src, !clamp, true).grid;
+                bool inactive_differ = false;
+                for (const std::string &w : pg.warnings)
+                    inactive_differ |= w.find("inactive voxels hold values") != std::string::npos;
+                const Queries q = make_queries(src, grid);
+                const std::vector<uint8_t> active = some_active(q.voxels.size(), 77);
+                for (Lookup lookup : { Lookup::Nearest, Lookup::Trilinear }) {
+                    const std::vector<float> a = run(grid.sampler, lookup, q, active),
+                                             b = run(index.sampler, lookup, q, active);
+                    size_t differ = 0;
+                    for (size_t i = 0; i < a.size(); ++i)
+                        differ += std::memcmp(&a[i], &b[i], 4) != 0;
+                    MESSAGE(backend_name<Float>(), " ", lookup_name(lookup), ", ", src.label,
+                            " as an index grid (", pg.index_values.size(), " values), clamp ",
+                            clamp, ": ", a.size() - differ, " of ", a.size(), " lanes equal",
+                            std::string(inactive_differ ? " (inactive voxels differ from the background)" : ""));
+                    if (!inactive_differ)
+                        CHECK(differ == 0);
+                }
+            }
+        }
+    }
+}
+
 } // namespace
 
 // ---------------------------------------------------------------------------
+
+TEST_CASE_TEMPLATE("index grids (differentiable=true) read as their grids", Float, float,
+                   LLVMFloat) {
+    check_index_lookups<Float>();
+}
 
 TEST_CASE_TEMPLATE("nearest and trilinear equal PNanoVDB's reads (float, half, fp8, fpn)", Float,
                    float, LLVMFloat) {

@@ -136,10 +136,13 @@ Float GridSampler<Float>::indexed_value(const UInt32 &index, const Mask &active)
     Mask stored = active & (index != 0u);
     Float value;
     if constexpr (dr::is_jit_v<Float>)
-        value = dr::gather<Float>(index_values, UInt32(index - 1u), stored);
+        value = dr::width(index_values) == 0 // (a grid without values: all background)
+                    ? Float(0.f)
+                    : dr::gather<Float>(index_values, UInt32(index - 1u), stored);
     else
         value = stored ? index_values[index - 1u] : 0.f;
-    return dr::select(stored, value, index_background);
+    // (inactive lanes return 0, as every read does)
+    return dr::select(stored, value, dr::select(active, index_background, Float(0.f)));
 }
 
 template <typename Float>
