@@ -3,29 +3,35 @@ rendered views with Mitsuba's differentiable volumetric path tracer, and
 measure what one optimization step costs.
 
     python3 bench/optimize.py --target cloud.vol [--plugin gridvolume]
-        [--variant llvm_ad_rgb] [--views 8] [--res 64] [--spp 8] [--ref-spp 512]
-        [--iters 60] [--lr 0.05] [--max-depth 8] [--out bench/results/optimize]
+        [--reference cloud.vol] [--variant llvm_ad_rgb] [--views 8] [--res 64]
+        [--spp 8] [--ref-spp 512] [--iters 60] [--lr 0.05] [--max-depth 8]
+        [--out bench/results/optimize]
+    python3 bench/optimize.py --target cloud.nvdb --plugin nanovdbvolume --reference cloud.vol
 
 The scene is the benchmark's (bench/scene.py: the volume in a unit cube,
 albedo 0.9, sky + sun, scale 40) with `prbvolpath` (max_depth --max-depth)
 and the turntable's first --views sensors. The target images are `volpath`
-renders of the target volume at --ref-spp. The optimized volume starts as a
-constant (a tenth of the target's mean, in the same box and resolution) and
-takes one view per iteration, in turn: render, L2 loss against that view's
-target, backward, Adam step, values clamped at 0.
+renders of --reference (default: the target) through gridvolume for a .vol,
+nanovdbvolume for a .nvdb, at --ref-spp: give both plugins the same .vol and
+they fit the same images. The optimized volume starts as a constant (a tenth
+of the target's mean) in the target's box and resolution -- gridvolume: every
+voxel of the box; nanovdbvolume (differentiable=true): the target's active
+voxels and tiles, its tree kept (the sparse case: where the medium may be is
+known, e.g. from a coarse reconstruction) -- and takes one view per
+iteration, in turn: render, L2 loss against that view's target, backward,
+Adam step, values clamped at 0, params.update().
 
 Per iteration: the wall time (render + backward + step + update), the
-loss, and the RMSE of the volume's values against the target's (the
-target is known here, so the recovery itself is measured, not only the
-images). Per run: the bytes of an optimization step, counted from the
-arrays (values, gradient, Adam's two moments: 16 bytes per value) and as
-the process's peak RSS above its level after loading, and the time per
-iteration (median of the warm ones).
+loss, and the RMSE of the volume's values against the target's over the
+whole box (the target is known here, so the recovery itself is measured,
+not only the images; a voxel outside nanovdbvolume's tree is 0, as the
+target's). Per run: the bytes of an optimization step, counted from the
+arrays (values, gradient, Adam's two moments: 16 bytes per value; for
+nanovdbvolume also its tree and majorant table) and as the process's peak
+RSS above its level after loading, and the time per iteration (median of
+the warm ones).
 
-`--plugin gridvolume` optimizes gridvolume's `data` (a dense tensor over
-the whole box). `--plugin nanovdbvolume` needs its differentiable values
-(issue 20); until then it stops with a message. A measurement, not a test;
-results: OUT/PLUGIN_TARGET.{json,csv,png}.
+A measurement, not a test; results: OUT/PLUGIN_TARGET.{json,csv,png}.
 """
 import argparse
 import json
@@ -48,7 +54,10 @@ def peak_rss_bytes():
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--target", required=True, help="the target volume (.vol for gridvolume)")
+    ap.add_argument("--target", required=True,
+                    help="the target volume (.vol for gridvolume, .nvdb for nanovdbvolume)")
+    ap.add_argument("--reference", default="",
+                    help="the volume the target images are rendered from (default: --target)")
     ap.add_argument("--plugin", default="gridvolume", choices=["gridvolume", "nanovdbvolume"])
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--build", default="", help="a build folder holding plugins/")
@@ -73,9 +82,14 @@ def main():
             del desc[f"sensor_{i}"]
         return mi.load_dict(desc)
 
+    def load(path, **kw):
+        plugin = "gridvolume" if path.endswith(".vol") else "nanovdbvolume"
+        if plugin == "nanovdbvolume":
+            kw["differentiable"] = True
+        return mi.load_dict({"type": plugin, "filename": path, **kw})
+
     # The target images
-    target = mi.load_dict({"type": a.plugin, "filename": a.target})
-    ref_scene = scene_with(target, "volpath", a.ref_spp)
+    ref_scene = scene_with(load(a.reference or a.target), "volpath", a.ref_spp)
     t0 = time.perf_counter()
     refs = [mi.render(ref_scene, sensor=v, seed=1000 + v) for v in range(a.views)]
     dr.eval(refs)
@@ -83,25 +97,34 @@ def main():
           flush=True)
 
     key_suffix = "data"
+    target = load(a.target)
     target_values = mi.traverse(target)
-    key = next((k for k in target_values.keys() if k.endswith(key_suffix)), None)
-    if key is None and a.plugin == "nanovdbvolume":
-        sys.exit("nanovdbvolume exposes no differentiable values yet (issue 20): "
-                 f"mi.traverse gives {list(target_values.keys())}")
-    truth = np.array(target_values[key]).ravel()
+    truth = np.array(target_values["data"]).ravel()
+    box_voxels = int(np.prod(target.resolution()))
     del target_values, target, ref_scene
 
-    # The volume to optimize: the same box and resolution, one constant value
-    opt = mi.load_dict({"type": a.plugin, "filename": a.target})
+    # The volume to optimize: the same box and resolution (nanovdbvolume:
+    # the same tree), one constant value
+    opt = load(a.target)
     scene = scene_with(opt, "prbvolpath", a.spp)
     params = mi.traverse(scene)
     pkey = next(k for k in params.keys() if k.endswith("sigma_t." + key_suffix))
-    shape = params[pkey].shape
-    params[pkey] = dr.full(mi.TensorXf, float(truth.mean()) * 0.1, shape)
+    start = float(truth.mean()) * 0.1
+    if isinstance(params[pkey], mi.TensorXf):
+        params[pkey] = dr.full(mi.TensorXf, start, params[pkey].shape)
+    else:
+        params[pkey] = dr.full(mi.Float, start, dr.width(params[pkey]))
     params.update()
-    n_values = int(np.prod(shape))
+    n_values = dr.width(params[pkey].array if isinstance(params[pkey], mi.TensorXf) else params[pkey])
+    facts = {k.split(".")[-1]: params[k] for k in params.keys()
+             if k.endswith(("sigma_t.grid_bytes", "sigma_t.majorant_bytes"))}
+    tree_bytes = int(facts.get("grid_bytes", 0) + facts.get("majorant_bytes", 0))
     dr.eval()
     rss_loaded = peak_rss_bytes()
+
+    def box_rmse(values):
+        # over the whole box: a voxel outside the sparse tree is 0 in both
+        return float(np.sqrt(np.sum((values - truth) ** 2) / box_voxels))
 
     optimizer = mi.ad.Adam(lr=a.lr)
     optimizer[pkey] = params[pkey]
@@ -122,7 +145,7 @@ def main():
         loss_value = float(np.array(loss).ravel()[0])
         dt = time.perf_counter() - t0
         values = np.array(params[pkey]).ravel()
-        vol_rmse = float(np.sqrt(np.mean((values - truth) ** 2)))
+        vol_rmse = box_rmse(values)
         rows.append(dict(iter=it, view=v, time_s=dt, elapsed_s=time.perf_counter() - t_start,
                          loss=loss_value, volume_rmse=vol_rmse))
         print(f"  iter {it:3d} view {v}: loss {loss_value:.5f}, volume RMSE {vol_rmse:.4f}, "
@@ -132,10 +155,11 @@ def main():
     summary = dict(
         plugin=a.plugin, target=os.path.abspath(a.target), variant=a.variant,
         views=a.views, res=a.res, spp=a.spp, max_depth=a.max_depth, iters=a.iters, lr=a.lr,
-        values=n_values, step_bytes_counted=16 * n_values,
+        values=n_values, box_voxels=box_voxels, tree_and_table_bytes=tree_bytes,
+        step_bytes_counted=16 * n_values + tree_bytes,
         peak_rss_above_loaded=max(peak_rss_bytes() - rss_loaded, 0),
         time_per_iter_s=statistics.median(warm),
-        volume_rmse_start=float(np.sqrt(np.mean((truth.mean() * 0.1 - truth) ** 2))),
+        volume_rmse_start=box_rmse(np.full_like(truth, truth.mean() * 0.1)),
         volume_rmse_end=rows[-1]["volume_rmse"], loss_end=rows[-1]["loss"])
     print(json.dumps(summary, indent=1))
 

@@ -160,13 +160,17 @@ def medium_scene(volume, integrator="prbvolpath", res=24, spp=16, scale=3.0, max
         "type": "scene",
         "integrator": {"type": integrator, "max_depth": max_depth},
         "sensor": {"type": "perspective", "fov": 40,
-                   "to_world": mi.ScalarTransform4f().look_at([0.4, 0.3, 3.2], [0, 0, 0], [0, 1, 0]),
+                   "to_world": mi.ScalarTransform4f().look_at([0.7, 0.6, 2.1], [0.5, 0.5, 0.5], [0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": res, "height": res,
                             "rfilter": {"type": "box"}, "pixel_format": "rgb"},
                    "sampler": {"type": "independent", "sample_count": spp}},
         "emitter": {"type": "constant"},
         "light": {"type": "point", "position": [2, 2, 2], "intensity": {"type": "rgb", "value": 8}},
+        # the medium's cube is the volume's unit cube (Mitsuba 3.9's volpath and
+        # prbvolpath are biased where a medium's shape reaches beyond its
+        # volume's box: measured 0.62 against ray marching's 0.91)
         "cube": {"type": "cube", "bsdf": {"type": "null"},
+                 "to_world": mi.ScalarTransform4f().translate(0.5).scale(0.5),
                  "interior": {"type": "heterogeneous", "sigma_t": volume, "scale": scale,
                               "albedo": 0.7}},
     })
@@ -235,6 +239,9 @@ def fd_check(variant, make_grid, source, filter_type="trilinear", seeds=8):
     _setup_variant(variant)
     if source == "tiles":
         nvdb, _ = make_grid("lower_tiles")
+        # max_value: headroom above the largest value (2.25, a tile): where the
+        # density reaches the majorant, prbvolpath's gradient is biased
+        # (measured here: +0.022 against finite differences' -0.011)
         volume = {"type": "nanovdbvolume", "filename": nvdb, "wrap_mode": "clamp",
                   "max_value": 4.0}
     else:

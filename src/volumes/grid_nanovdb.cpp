@@ -512,6 +512,7 @@ public:
      */
     void traverse(TraversalCallback *cb) override {
         Base::traverse(cb);
+        node_majorants(); // (its facts: an index grid's after an update)
         m_trav.grid_type = m_facts.grid_type;
         m_trav.grid_class = m_facts.grid_class;
         m_trav.channels = m_channel_count;
@@ -610,10 +611,14 @@ public:
     // collision stays in its segment).
 
     ScalarFloat local_majorant_ratio() const override {
+        node_majorants();
         return m_channel_count == 6 ? 1.f : m_facts.majorant_ratio;
     }
 
-    ScalarFloat majorant_bound() const override { return max(); }
+    ScalarFloat majorant_bound() const override {
+        node_majorants();
+        return max();
+    }
 
     bool stochastic_lookups() const override {
         return m_filter == Filter::StochasticTrilinear || m_filter == Filter::StochasticTricubic;
@@ -992,11 +997,76 @@ private:
 
     /**
      * An index grid's values changed (params.update() after an optimizer
-     * step): the value policy on the backend, then max() and the per-node
-     * majorants again, from the values and the tree in host memory (LLVM
-     * and scalar read both in place; CUDA copies the values to the host, the
-     * tree's copy was kept at load). The values are neither copied nor
-     * moved on the backend.
+     * step). On the backend, without reading the values back: the value
+     * policy (clamp: NaN and negatives to 0, +Inf to the largest finite
+     * value; error: a count of NaN and infinities, refused if any) and
+     * max(), the values' largest (with the background and a given
+     * max_value: a bound of every lookup, if looser than max_in_box's).
+     * The per-node majorants, which only the walk (volpathlocal) reads, are
+     * marked stale: rebuilt when it next asks for them (node_majorants()).
+     */
+    void update_index_max() {
+        namespace loader = nanovdb_loader;
+        auto &values = m_sampler.index_values;
+        float largest = m_background_host;
+        if constexpr (dr::is_jit_v<Float>) {
+            if (m_invalid_values == loader::InvalidValues::Clamp) {
+                Float v = values;
+                v = dr::select(dr::isnan(v) | (v < 0.f), 0.f, v);
+                Float finite_max = dr::max(dr::select(dr::isinf(v), 0.f, v));
+                values = dr::select(dr::isinf(v), finite_max, v);
+            }
+            if (dr::width(values) > 0) {
+                auto detached = dr::detach(values);
+                using D = decltype(detached);
+                D bad = dr::select(dr::isnan(detached) | dr::isinf(detached), 1.f, 0.f),
+                  negative = dr::select(detached < 0.f, 1.f, 0.f);
+                dr::Array<D, 3> r(dr::max(detached), dr::sum(bad), dr::sum(negative));
+                dr::eval(r);
+                const float host[3] = { r[0].entry(0), r[1].entry(0), r[2].entry(0) };
+                if (host[1] > 0.f)
+                    Throw("nanovdbvolume: \"%s\": after an update of \"data\": %.0f values are "
+                          "NaN or infinite; only finite values can be rendered. Set "
+                          "invalid_values=\"clamp\" to replace NaN by 0 and +Inf by the "
+                          "largest finite value", m_filename, host[1]);
+                if (host[2] > 0.f)
+                    Log(Warn, "nanovdbvolume: \"%s\": after an update of \"data\": %.0f "
+                              "negative values (invalid_values=\"clamp\" replaces them by 0)",
+                        m_filename, host[2]);
+                largest = std::max(largest, host[0]);
+            }
+        } else {
+            for (float &x : values) {
+                if (m_invalid_values == loader::InvalidValues::Clamp && !(x >= 0.f))
+                    x = 0.f;
+                if (!std::isfinite(x))
+                    Throw("nanovdbvolume: \"%s\": after an update of \"data\": a value is "
+                          "NaN or infinite", m_filename);
+                largest = std::max(largest, x);
+            }
+        }
+        m_facts.max = std::max(largest, m_max_value_given);
+        for (int k = 0; k < 3; ++k)
+            m_facts.max3[k] = m_facts.max;
+        m_sampler.set_bounds(m_facts.max, m_facts.max3);
+        m_index_bounds_stale = true;
+    }
+
+    /// The per-node majorants of an index grid whose values changed, again
+    /// (the walk's: volpathlocal asks for local_majorant_ratio() and
+    /// majorant_bound() before every render). Logically const: the bounds of
+    /// the values the volume holds.
+    void node_majorants() const {
+        if (m_index_bounds_stale)
+            const_cast<NanoVDBVolume *>(this)->update_index_bounds();
+    }
+
+    /**
+     * The per-node majorants and max_in_box() from the values and the tree
+     * in host memory, through the loader's own passes (validation's value
+     * statistics, node_majorants, mean_bound): LLVM and scalar variants read
+     * both in place; CUDA copies the values to the host (its tree's copy
+     * was kept at load).
      */
     void update_index_bounds() {
         namespace loader = nanovdb_loader;
@@ -1005,14 +1075,6 @@ private:
         const float *host_values;
         std::vector<float> copy;
         if constexpr (dr::is_jit_v<Float>) {
-            if (m_invalid_values == loader::InvalidValues::Clamp) {
-                // NaN and negatives to 0, +Inf to the largest finite value
-                Float v = values;
-                Mask bad = dr::isnan(v) | (v < 0.f);
-                v = dr::select(bad, 0.f, v);
-                Float finite_max = dr::max(dr::select(dr::isinf(v), 0.f, v));
-                values = dr::select(dr::isinf(v), finite_max, v);
-            }
             dr::eval(values);
             dr::sync_thread();
             count = dr::width(values);
@@ -1047,6 +1109,7 @@ private:
                 m_facts.max3[k] = set.max3[k];
             m_facts.grid_max = g.grid_max;
             m_facts.majorant_ratio = m_facts.max > 0.f ? ScalarFloat(set.mean_bound / m_facts.max) : 1.f;
+            m_index_bounds_stale = false;
         } catch (const loader::Error &e) {
             Throw("nanovdbvolume: after an update of \"data\": %s", e.what());
         }
@@ -1056,7 +1119,7 @@ public:
     void parameters_changed(const std::vector<std::string> &keys = {}) override {
         if (m_index_tree_bytes != 0 &&
             (keys.empty() || std::find(keys.begin(), keys.end(), "data") != keys.end()))
-            update_index_bounds();
+            update_index_max();
         Base::parameters_changed(keys);
     }
 
@@ -1224,6 +1287,7 @@ private:
     // Index grids (differentiable, or OnIndex in the file)
     bool m_differentiable = false;     // make the grid an index grid
     ScalarFloat m_max_value_given = 0.f; // max_value, kept after updates
+    bool m_index_bounds_stale = false; // values changed since the per-node majorants
     nanovdb_loader::BlindSelection m_blind; // a file's index grid: its values' channel
     size_t m_index_tree_bytes = 0;     // 0: not an index grid
     nanovdb_loader::PrepareOptions m_index_options; // to bound it again
