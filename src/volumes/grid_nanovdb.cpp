@@ -15,6 +15,7 @@
 #include "sampler_setup.h"
 
 #include <array>
+#include <chrono>
 #include <cstdlib>
 #include <cstring>
 #include <optional>
@@ -1023,6 +1024,8 @@ private:
                   negative = dr::select(detached < 0.f, 1.f, 0.f);
                 dr::Array<D, 3> r(dr::max(detached), dr::sum(bad), dr::sum(negative));
                 dr::eval(r);
+                // (the read waits for the backend's queue: the render and
+                // backward pass before it, on LLVM, finish here)
                 const float host[3] = { r[0].entry(0), r[1].entry(0), r[2].entry(0) };
                 if (host[1] > 0.f)
                     Throw("nanovdbvolume: \"%s\": after an update of \"data\": %.0f values are "
@@ -1057,8 +1060,13 @@ private:
     /// majorant_bound() before every render). Logically const: the bounds of
     /// the values the volume holds.
     void node_majorants() const {
-        if (m_index_bounds_stale)
-            const_cast<NanoVDBVolume *>(this)->update_index_bounds();
+        if (!m_index_bounds_stale)
+            return;
+        auto t0 = std::chrono::steady_clock::now();
+        const_cast<NanoVDBVolume *>(this)->update_index_bounds();
+        Log(Debug, "nanovdbvolume: \"%s\": per-node majorants of the updated values in %.1f ms",
+            m_filename, std::chrono::duration<double, std::milli>(
+                            std::chrono::steady_clock::now() - t0).count());
     }
 
     /**
@@ -1118,8 +1126,9 @@ private:
 public:
     void parameters_changed(const std::vector<std::string> &keys = {}) override {
         if (m_index_tree_bytes != 0 &&
-            (keys.empty() || std::find(keys.begin(), keys.end(), "data") != keys.end()))
+            (keys.empty() || std::find(keys.begin(), keys.end(), "data") != keys.end())) {
             update_index_max();
+        }
         Base::parameters_changed(keys);
     }
 
