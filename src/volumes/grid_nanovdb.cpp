@@ -133,6 +133,22 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
      spectra (``eval()``); ``true`` keeps the raw vectors (``eval_3()``), as
      ``gridvolume``'s ``raw``. (Default: ``false``)
 
+ * - differentiable
+   - |bool|
+   - ``true``: the grid (float, Half or quantized) becomes an index grid
+     (NanoVDB's OnIndex: its tree, with value indices) and one Float array
+     of its active voxels' and tiles' values, exposed as the differentiable
+     parameter ``data`` (nanovdb_loader/index_grid.h gives the order).
+     After ``params.update()``, ``max()`` follows the values. (Default:
+     ``false``)
+
+ * - blind_channel, blind_component
+   - |string|, |int|
+   - Index grids of a file (OnIndex, e.g. fVDB's and Warp's): the blind
+     channel holding the values (default: the first channel of floats) and,
+     where each value has several floats (fVDB's tensor rows), which one
+     (default: 0). Their values are exposed as ``data`` too.
+
  * - invalid_values
    - |string|
    - What to do with NaN, infinite and negative voxel or tile values:
