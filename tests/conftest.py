@@ -193,6 +193,17 @@ def rss_bytes():
     return _bench_module("worker").rss_bytes()
 
 
+def trim_heap():
+    """Returns the heap's free pages to the system (glibc's malloc_trim), so
+    that RSS measures what is held, not what earlier tests or a load's own
+    temporaries freed and the allocator kept"""
+    import ctypes
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def settle_gpu():
     """Waits for pending kernels and returns Dr.Jit's cached blocks, so that
     gpu_used_bytes() sees what live objects hold."""

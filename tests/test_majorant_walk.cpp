@@ -82,6 +82,18 @@ struct WalkGrid {
     float index_background = 0.f;
 };
 
+/// The plan, the majorants and the box of a validated grid
+void set_up_walk_grid(WalkGrid &g, const loader::ValidatedGrid &v) {
+    g.plan = loader::plan_readers(v);
+    g.majorants = loader::node_majorants(v);
+    const loader::GridSummary &s = v.summary();
+    for (int a = 0; a < 3; ++a) {
+        g.lo[a] = s.empty ? 0 : s.bbox_min[a];
+        g.hi[a] = s.empty ? 0 : s.bbox_max[a];
+        g.base[a] = int32_t(uint32_t(g.lo[a]) & ~4095u);
+    }
+}
+
 WalkGrid make_walk_grid(const std::string &name, Handle handle,
                         const nvdb_test::TypedGrid *typed = nullptr) {
     WalkGrid g;
@@ -97,15 +109,7 @@ WalkGrid make_walk_grid(const std::string &name, Handle handle,
         std::memcpy(g.words.data(), handle.data(), handle.size());
     }
     g.handle = std::move(handle);
-    loader::ValidatedGrid v = loader::validate_grid(g.name, g.words.data(), bytes);
-    g.plan = loader::plan_readers(v);
-    g.majorants = loader::node_majorants(v);
-    const loader::GridSummary &s = v.summary();
-    for (int a = 0; a < 3; ++a) {
-        g.lo[a] = s.empty ? 0 : s.bbox_min[a];
-        g.hi[a] = s.empty ? 0 : s.bbox_max[a];
-        g.base[a] = int32_t(uint32_t(g.lo[a]) & ~4095u);
-    }
+    set_up_walk_grid(g, loader::validate_grid(g.name, g.words.data(), bytes));
     return g;
 }
 
@@ -135,17 +139,10 @@ WalkGrid make_index_walk_grid(const std::string &name, Handle handle) {
     if (!g.index_values.empty())
         g.index_values[g.index_values.size() / 2] = 100.f * std::max(old_max, 1.f);
     g.handle = std::move(handle);
-    loader::ValidatedGrid iv = loader::validate_grid(
-        g.name, g.words.data(), made.bytes.size(),
-        loader::IndexValues{ g.index_values.data(), g.index_values.size(), g.index_background });
-    g.plan = loader::plan_readers(iv);
-    g.majorants = loader::node_majorants(iv);
-    const loader::GridSummary &s = iv.summary();
-    for (int a = 0; a < 3; ++a) {
-        g.lo[a] = s.empty ? 0 : s.bbox_min[a];
-        g.hi[a] = s.empty ? 0 : s.bbox_max[a];
-        g.base[a] = int32_t(uint32_t(g.lo[a]) & ~4095u);
-    }
+    set_up_walk_grid(g, loader::validate_grid(g.name, g.words.data(), made.bytes.size(),
+                                              loader::IndexValues{ g.index_values.data(),
+                                                                   g.index_values.size(),
+                                                                   g.index_background }));
     return g;
 }
 

@@ -40,7 +40,7 @@ import drjit as dr
 import mitsuba as mi
 
 from conftest import (BUILD, eval_points, gpu_used_bytes, load_dense, load_nvdb, read_vol,
-                      rss_bytes, settle_gpu)
+                      rss_bytes, settle_gpu, trim_heap)
 from conftest import make_stability_grid as make
 
 BIG = BUILD / "bin" / "nvdb_big_grid"
@@ -495,9 +495,11 @@ def test12_beyond_4gib(variants_rgb, big_grid):
     settle_gpu() if cuda else dr.sync_thread()
     wm0 = dr.detail.malloc_watermark(dr.JitBackend.LLVM) if llvm else 0
     g0 = gpu_used_bytes() if cuda else 0
+    trim_heap()
     r0 = rss_bytes()
     vol = load_nvdb(path, filter_type="nearest", use_grid_transform=True)
     dr.sync_thread()
+    trim_heap()  # (the loader's temporaries, freed: not held)
     held = rss_bytes() - r0
     wm = (dr.detail.malloc_watermark(dr.JitBackend.LLVM) - wm0) if llvm else 0
     gpu = (gpu_used_bytes() - g0) if cuda else 0
