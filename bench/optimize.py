@@ -5,7 +5,7 @@ measure what one optimization step costs.
     python3 bench/optimize.py --target cloud.vol [--plugin gridvolume]
         [--reference cloud.vol] [--variant llvm_ad_rgb] [--views 8] [--res 64]
         [--spp 8] [--ref-spp 512] [--iters 60] [--lr 0.05] [--max-depth 8]
-        [--out bench/results/optimize]
+        [--filter trilinear] [--out bench/results/optimize]
     python3 bench/optimize.py --target cloud.nvdb --plugin nanovdbvolume --reference cloud.vol
 
 The scene is the benchmark's (bench/scene.py: the volume in a unit cube,
@@ -68,6 +68,10 @@ def main():
     ap.add_argument("--iters", type=int, default=60)
     ap.add_argument("--lr", type=float, default=0.05)
     ap.add_argument("--max-depth", type=int, default=8)
+    ap.add_argument("--filter", default="trilinear",
+                    choices=["nearest", "trilinear", "stochastic_trilinear"],
+                    help="nanovdbvolume's filter_type while optimizing (gridvolume: trilinear "
+                         "always; the target images are rendered with trilinear)")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "optimize"))
     a = ap.parse_args()
 
@@ -82,10 +86,12 @@ def main():
             del desc[f"sensor_{i}"]
         return mi.load_dict(desc)
 
-    def load(path, **kw):
+    def load(path, optimized=False, **kw):
         plugin = "gridvolume" if path.endswith(".vol") else "nanovdbvolume"
         if plugin == "nanovdbvolume":
             kw["differentiable"] = True
+            if optimized:
+                kw["filter_type"] = a.filter
         return mi.load_dict({"type": plugin, "filename": path, **kw})
 
     # The target images
@@ -105,7 +111,7 @@ def main():
 
     # The volume to optimize: the same box and resolution (nanovdbvolume:
     # the same tree), one constant value
-    opt = load(a.target)
+    opt = load(a.target, optimized=True)
     scene = scene_with(opt, "prbvolpath", a.spp)
     params = mi.traverse(scene)
     pkey = next(k for k in params.keys() if k.endswith("sigma_t." + key_suffix))
@@ -154,6 +160,7 @@ def main():
     warm = [r["time_s"] for r in rows[min(a.views, len(rows) - 1):]] or [rows[-1]["time_s"]]
     summary = dict(
         plugin=a.plugin, target=os.path.abspath(a.target), variant=a.variant,
+        filter=a.filter if a.plugin == "nanovdbvolume" else "trilinear",
         views=a.views, res=a.res, spp=a.spp, max_depth=a.max_depth, iters=a.iters, lr=a.lr,
         values=n_values, box_voxels=box_voxels, tree_and_table_bytes=tree_bytes,
         step_bytes_counted=16 * n_values + tree_bytes,
@@ -164,7 +171,9 @@ def main():
     print(json.dumps(summary, indent=1))
 
     os.makedirs(a.out, exist_ok=True)
-    stem = os.path.join(a.out, f"{a.plugin}_{os.path.splitext(os.path.basename(a.target))[0]}")
+    stem = os.path.join(a.out, f"{a.plugin}_{os.path.splitext(os.path.basename(a.target))[0]}" +
+                        (f"_{a.filter}" if a.plugin == "nanovdbvolume" and a.filter != "trilinear"
+                         else ""))
     with open(stem + ".json", "w") as f:
         json.dump(dict(summary=summary, rows=rows), f, indent=1)
     with open(stem + ".csv", "w") as f:

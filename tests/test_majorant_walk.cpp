@@ -128,7 +128,7 @@ WalkGrid make_index_walk_grid(const std::string &name, Handle handle) {
     g.words.resize((made.bytes.size() + 3) / 4);
     std::memcpy(g.words.data(), made.bytes.data(), made.bytes.size());
     g.index_values = std::move(made.values.values);
-    g.index_background = made.values.background;
+    g.index_background = made.values.background[0];
     std::mt19937_64 rng(23);
     std::uniform_real_distribution<float> u(0.f, 3.f);
     float old_max = 0.f;
@@ -142,7 +142,9 @@ WalkGrid make_index_walk_grid(const std::string &name, Handle handle) {
     set_up_walk_grid(g, loader::validate_grid(g.name, g.words.data(), made.bytes.size(),
                                               loader::IndexValues{ g.index_values.data(),
                                                                    g.index_values.size(),
-                                                                   g.index_background }));
+                                                                   { g.index_background,
+                                                                     g.index_background,
+                                                                     g.index_background } }));
     return g;
 }
 

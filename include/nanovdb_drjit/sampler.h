@@ -47,6 +47,7 @@
 #include <nanovdb_drjit/stencil.h>
 #include <nanovdb_drjit/traverse.h>
 
+#include <array>
 #include <atomic>
 #include <cstdlib>
 #include <memory>
@@ -162,9 +163,12 @@ public:
                     uint32_t tile_begin_word);
 
     /// Index grids (OnIndex): the value of every index but 0, index i at
-    /// values[i - 1], and the background (index 0). On JIT backends the
-    /// values are a Float array that lookups gather from: differentiable
-    void set_index_values(const float *values, size_t count, float background);
+    /// values[i - 1] (`channels` 3: the floats values[3 (i - 1) + c], read
+    /// by nearest3 / trilinear3), and the background (index 0, per
+    /// channel); `count` floats. On JIT backends the values are a Float
+    /// array that lookups gather from: differentiable
+    void set_index_values(const float *values, size_t count, const std::array<float, 3> &background,
+                          uint32_t channels = 1);
 
     /// count_lookups: start counting (one atomic add per counted lane)
     void enable_counters();
@@ -188,7 +192,7 @@ public:
     /// weights are non-negative and sum to 1: no value exceeds max())
     Vector3i stochastic_voxel(const Vector3f &rel, const Vector3f &u, bool tricubic) const;
 
-    /// Vec3f grids: each channel clamped to its max
+    /// Vec3f grids (and index grids of 3 channels): each channel clamped to its max
     Vector3f nearest3(const Vector3i &voxel, const Mask &active) const;
     Vector3f trilinear3(const Vector3f &rel, const Mask &active) const;
 
@@ -236,7 +240,8 @@ public:
     Vector3f max3;                 ///< ... of each channel (Vec3f)
     Scales scales;                 ///< spectral Vec3f: each value's scale
     Scales index_values;           ///< index grids: value index i + 1's value at i
-    Float index_background;        ///< index grids: index 0's value
+    Vector3f index_background;     ///< index grids: index 0's value (per channel)
+    uint32_t index_channels = 1;   ///< index grids: floats a value (1 or 3)
     UInt32 scale_tiles, scale_background, leaf_begin_word, tile_begin_word;
 
     NVDB_TRAVERSE(grid, reader, majorants, index_min, last_voxel, max, max3, scales,
@@ -265,6 +270,11 @@ private:
     Float value_at(const Coord<UInt32> &ijk, const Mask &active) const;
     /// Index grids: the value of a value index (0: the background)
     Float indexed_value(const UInt32 &index, const Mask &active) const;
+    /// ... of 3 channels
+    Vector3f indexed_value3(const UInt32 &index, const Mask &active) const;
+    /// Index grids of 3 channels: the value index of an absolute coordinate
+    UInt32 index_at(const Coord<UInt32> &ijk, const Mask &active) const;
+    bool vec3_index() const { return grid_type == layout::GRID_TYPE_ONINDEX && index_channels == 3; }
     /// The value at a value address and level (scalar types and index grids)
     template <uint32_t T, typename Buf>
     Float read_value(const Buf &buf, const UInt32 &address, const UInt32 &level,

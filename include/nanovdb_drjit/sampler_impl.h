@@ -65,8 +65,12 @@ void GridSampler<Float>::set_scales(std::vector<float> s, uint32_t tiles_begin,
 }
 
 template <typename Float>
-void GridSampler<Float>::set_index_values(const float *values, size_t count, float background) {
-    index_background = dr::opaque<Float>(background);
+void GridSampler<Float>::set_index_values(const float *values, size_t count,
+                                          const std::array<float, 3> &background,
+                                          uint32_t channels) {
+    for (int k = 0; k < 3; ++k)
+        index_background[k] = dr::opaque<Float>(background[k]);
+    index_channels = channels;
     if constexpr (dr::is_jit_v<Float>)
         index_values = dr::load<Float>(values, count);
     else
@@ -142,7 +146,38 @@ Float GridSampler<Float>::indexed_value(const UInt32 &index, const Mask &active)
     else
         value = stored ? index_values[index - 1u] : 0.f;
     // (inactive lanes return 0, as every read does)
-    return dr::select(stored, value, dr::select(active, index_background, Float(0.f)));
+    return dr::select(stored, value, dr::select(active, index_background[0], Float(0.f)));
+}
+
+template <typename Float>
+typename GridSampler<Float>::Vector3f
+GridSampler<Float>::indexed_value3(const UInt32 &index, const Mask &active) const {
+    Mask stored = active & (index != 0u);
+    Vector3f value;
+    if constexpr (dr::is_jit_v<Float>) {
+        // (value i's 3 floats from 3 i: a gather of Vector3f; under AD its
+        // adjoint scatters each channel's gradient to its own float)
+        value = dr::width(index_values) == 0
+                    ? Vector3f(0.f)
+                    : dr::gather<Vector3f>(index_values, UInt32(index - 1u), stored);
+    } else {
+        if (stored)
+            for (uint32_t k = 0; k < 3; ++k)
+                value[k] = index_values[3 * (index - 1u) + k];
+        else
+            value = Vector3f(0.f);
+    }
+    return dr::select(stored, value, dr::select(active, index_background, Vector3f(0.f)));
+}
+
+template <typename Float>
+typename GridSampler<Float>::UInt32
+GridSampler<Float>::index_at(const Coord<UInt32> &ijk, const Mask &active) const {
+    constexpr uint32_t T = layout::GRID_TYPE_ONINDEX;
+    return reader.apply(words(), [&](const auto &buf, const auto &root) {
+        AddressAndLevel<UInt32> al = value_address_and_level<T>(buf, root, ijk, active);
+        return root_read_index<T>(buf, al.address, al.level, ijk, active);
+    });
 }
 
 template <typename Float>
@@ -251,6 +286,9 @@ template <typename Float>
 typename GridSampler<Float>::Vector3f
 GridSampler<Float>::nearest3(const Vector3i &voxel, const Mask &active) const {
     count(Counter::Lookup, active);
+    if (vec3_index())
+        return clamp_to_max(indexed_value3(index_at(absolute(clamp_voxel(voxel)), active), active),
+                            max3);
     return clamp_to_max(read3(address3(voxel, active).address, active), max3);
 }
 
@@ -263,7 +301,10 @@ typename GridSampler<Float>::Stencil GridSampler<Float>::stencil3(const Vector3f
     Stencil s;
     s.ijk0 = absolute(base);
     s.corners = reader.apply(words(), [&](const auto &buf, const auto &root) {
-        return root_get_stencil<layout::GRID_TYPE_VEC3F, true>(buf, root, s.ijk0, active);
+        // (an index grid's corners: the addresses of their indices)
+        return vec3_index()
+                   ? root_get_stencil<layout::GRID_TYPE_ONINDEX, true>(buf, root, s.ijk0, active)
+                   : root_get_stencil<layout::GRID_TYPE_VEC3F, true>(buf, root, s.ijk0, active);
     });
     for (uint32_t corner = 0; corner < 8; ++corner) {
         Float weight = 1.f;
@@ -280,8 +321,20 @@ GridSampler<Float>::trilinear3(const Vector3f &rel, const Mask &active) const {
     count(Counter::Lookup, active);
     Stencil s = stencil3(rel, active);
     Vector3f sum(0.f);
-    for (uint32_t corner = 0; corner < 8; ++corner)
-        sum = dr::fmadd(read3(s.corners.address[corner], active), s.weight[corner], sum);
+    for (uint32_t corner = 0; corner < 8; ++corner) {
+        Vector3f value;
+        if (vec3_index()) {
+            Coord<UInt32> ijk = coord_add<UInt32>(s.ijk0, corner & 1u, (corner >> 1) & 1u,
+                                                  (corner >> 2) & 1u);
+            value = indexed_value3(root_read_index<layout::GRID_TYPE_ONINDEX>(
+                                       words(), s.corners.address[corner],
+                                       s.corners.level[corner], ijk, active),
+                                   active);
+        } else {
+            value = read3(s.corners.address[corner], active);
+        }
+        sum = dr::fmadd(value, s.weight[corner], sum);
+    }
     return clamp_to_max(sum, max3);
 }
 

@@ -25,6 +25,7 @@
 
 #include <nanovdb_loader/validation.h>
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -33,9 +34,10 @@ namespace nanovdb_loader {
 
 /// An index grid's values: index i >= 1 at values[i - 1], index 0 the background
 struct IndexGridValues {
-    std::vector<float> values;
-    float background = 0.f;
+    std::vector<float> values; ///< `channels` floats a value, interleaved
+    std::array<float, 3> background{}; ///< index 0's value, per channel
     std::string note; ///< where they came from, for the log
+    uint32_t channels = 1;     ///< 1, or 3 (a Vec3f grid made an index grid)
 };
 
 /// Which blind channel holds the values, and which float of each value
@@ -67,9 +69,10 @@ struct MadeIndexGrid {
     uint64_t inactive_differing = 0;
 };
 
-/// The OnIndex grid with the tree of `grid` (a scalar type: float, Half or
-/// quantized, whose values become floats as lookups decode them) and its
-/// active values. Throws Error for Vec3f grids and for 2^32 - 1 values or more.
+/// The OnIndex grid with the tree of `grid` (float, Half or quantized, whose
+/// values become floats as lookups decode them, or Vec3f, whose values
+/// become three floats each) and its active values. Throws Error for index
+/// grids and for 2^32 - 1 values or more.
 MadeIndexGrid make_index_grid(const ValidatedGrid &grid);
 
 } // namespace nanovdb_loader

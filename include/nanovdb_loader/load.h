@@ -133,4 +133,13 @@ PreparedGrid prepare_grid(const GridSource &source, void *dst, uint64_t dst_byte
 /// grid: what an index grid's values need again after they change
 PreparedGrid prepare_bounds(DecodedGrid decoded, const PrepareOptions &options);
 
+/// An index grid whose values changed (an optimizer's step): the tree at
+/// `tree` (made by prepare_grid, `tree_bytes` bytes) validated again with
+/// `values` (the caller's, kept where they are: the result does not own
+/// them; the tree is only read), the value policy applied to them, the reader plan, then
+/// prepare_bounds(). `path` and `name` name the volume in errors.
+PreparedGrid rebound_index_grid(const std::string &path, const std::string &name,
+                                const void *tree, uint64_t tree_bytes, IndexValues values,
+                                const PrepareOptions &options);
+
 } // namespace nanovdb_loader

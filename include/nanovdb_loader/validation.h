@@ -54,6 +54,7 @@
 
 #include <nanovdb_loader/container.h>
 
+#include <array>
 #include <cstdint>
 #include <limits>
 #include <string>
@@ -81,15 +82,17 @@ struct GridSummary {
 
 /**
  * The values of an index grid (OnIndex): value index i >= 1 reads
- * values[i - 1], index 0 the background. They live outside the tree (a
- * blind channel of the file, or an array the caller built): the caller owns
- * them, and they must outlive the ValidatedGrid. The value policy may
- * rewrite them (sanitize_values).
+ * values[i - 1] (Vec3f values, channels 3: the floats values[3 (i - 1) ..
+ * 3 (i - 1) + 2]), index 0 the background. They live
+ * outside the tree (a blind channel of the file, or an array the caller
+ * built): the caller owns them, and they must outlive the ValidatedGrid.
+ * The value policy may rewrite them (sanitize_values).
  */
 struct IndexValues {
     float *values = nullptr;
-    uint64_t count = 0;
-    float background = 0.f;
+    uint64_t count = 0;      ///< values (indices 1 .. count), of `channels` floats
+    std::array<float, 3> background{}; ///< index 0's value, per channel
+    uint32_t channels = 1;   ///< 1, or 3 (Vec3f values, interleaved)
 };
 
 /// Every value a lookup can return (see "Which values" above), summarised

@@ -30,6 +30,9 @@ template <typename T> inline T load(const uint8_t *p) {
     return v;
 }
 
+/// Unaligned little-endian store, load()'s pair
+template <typename T> inline void store(uint8_t *p, T v) { std::memcpy(p, &v, sizeof(T)); }
+
 using layout::version_major;
 
 /// a + b on int32 coordinates with wrap-around, as the lookups' coordinates

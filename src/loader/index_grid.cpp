@@ -29,9 +29,6 @@ constexpr uint32_t BLIND_OFF_DATA_TYPE = 28;   ///< uint32, a GridType (1: float
 constexpr uint32_t BLIND_OFF_NAME = 32;        ///< char[256]
 constexpr uint32_t BLIND_NAME_SIZE = 256;
 
-void store64(uint8_t *p, uint64_t v) { std::memcpy(p, &v, 8); }
-void store32(uint8_t *p, uint32_t v) { std::memcpy(p, &v, 4); }
-
 /// A blind channel as read from its record
 struct Channel {
     std::string name;
@@ -133,7 +130,8 @@ IndexGridValues take_blind_values(const std::string &path, uint8_t *grid, uint64
         rows = c.value_count;
         out.note = "blind channel \"" + c.name + "\" (" + std::to_string(rows) + " floats)";
         if (indices != 0 && rows == indices) { // the background's value first
-            std::memcpy(&out.background, floats, 4);
+            std::memcpy(&out.background[0], floats, 4);
+            out.background[1] = out.background[2] = out.background[0];
             ++floats;
             --rows;
         }
@@ -152,9 +150,9 @@ IndexGridValues take_blind_values(const std::string &path, uint8_t *grid, uint64
     // The tree ends where the blind data records begin (NanoVDB writes them
     // after the leaves); validation checks that every node lies before it
     tree_bytes = uint64_t(meta);
-    store64(grid + layout::GRID_OFF_GRID_SIZE, tree_bytes);
-    store64(grid + GRID_OFF_BLIND_METADATA_OFFSET, 0);
-    store32(grid + GRID_OFF_BLIND_METADATA_COUNT, 0);
+    store<uint64_t>(grid + layout::GRID_OFF_GRID_SIZE, tree_bytes);
+    store<uint64_t>(grid + GRID_OFF_BLIND_METADATA_OFFSET, 0);
+    store<uint32_t>(grid + GRID_OFF_BLIND_METADATA_COUNT, 0);
     return out;
 }
 
@@ -162,11 +160,15 @@ MadeIndexGrid make_index_grid(const ValidatedGrid &grid) {
     const GridSummary &s = grid.summary();
     const std::string &path = grid.path();
     const ValueCodec codec(s.grid_type, &grid.index_values());
-    if (codec.channels() != 1 || codec.indexed())
-        fail(path, "grid \"" + s.name + "\" (" + grid_type_name(s.grid_type) +
-                       "): only scalar grids (float, Half, Fp4/8/16/N) can be made into an "
-                       "index grid of differentiable values");
+    if (codec.indexed())
+        fail(path, "grid \"" + s.name + "\" is an index grid already");
+    const uint32_t channels = codec.channels();
     const TreeView view(grid);
+    // Index 0 stands for the background (a scalar grid's in every channel)
+    float bg[3] = { 0.f, 0.f, 0.f };
+    codec.tile(grid.data() + view.background(), bg);
+    if (channels == 1)
+        bg[1] = bg[2] = bg[0];
     const uint8_t *src = grid.data();
     const layout::GridTypeConstants &ci = layout::GRID_TYPE_CONSTANTS_ONINDEX;
     const uint64_t tiles = view.tile_count();
@@ -191,36 +193,42 @@ MadeIndexGrid make_index_grid(const ValidatedGrid &grid) {
     // Indices in the documented order: active root tiles, upper, lower
     // tiles, then the leaves' active voxels
     std::vector<float> &values = out.values.values;
-    const float background = s.background;
-    out.values.background = background;
-    auto is_background = [&](float v) {
-        return v == background || std::memcmp(&v, &background, 4) == 0;
+    out.values.background = { bg[0], bg[1], bg[2] };
+    out.values.channels = channels;
+    auto is_background = [&](const float *v) {
+        for (uint32_t k = 0; k < channels; ++k)
+            if (!(v[k] == bg[k] || std::memcmp(&v[k], &bg[k], 4) == 0))
+                return false;
+        return true;
     };
-    auto differs = [&](float v) {
+    auto differs = [&](const float *v) {
         if (!is_background(v))
             ++out.inactive_differing;
     };
-    auto take = [&](float v) {
-        values.push_back(v);
-        if (values.size() >= (uint64_t(1) << 32) - 1)
+    // A value's `channels` floats appended: its index
+    auto take = [&](const float *v) {
+        values.insert(values.end(), v, v + channels);
+        const uint64_t count = values.size() / channels;
+        if (count >= (uint64_t(1) << 32) - 1)
             fail(path, "grid \"" + s.name + "\" has 2^32 - 1 active values or more: beyond an "
                                             "index grid's 32-bit indices here");
-        return uint64_t(values.size());
+        return count;
     };
+    auto tile_value = [&](uint64_t byte, float *v) { codec.tile(src + byte, v); };
 
     std::memcpy(b.data(), src, layout::GRID_SIZE); // GridData, then patched
-    store32(&b[layout::GRID_OFF_GRID_TYPE], layout::GRID_TYPE_ONINDEX);
-    store64(&b[layout::GRID_OFF_GRID_SIZE], end);
-    store64(&b[layout::GRID_OFF_CHECKSUM], ~uint64_t(0)); // none
-    store64(&b[GRID_OFF_BLIND_METADATA_OFFSET], 0);
-    store32(&b[GRID_OFF_BLIND_METADATA_COUNT], 0);
+    store<uint32_t>(&b[layout::GRID_OFF_GRID_TYPE], layout::GRID_TYPE_ONINDEX);
+    store<uint64_t>(&b[layout::GRID_OFF_GRID_SIZE], end);
+    store<uint64_t>(&b[layout::GRID_OFF_CHECKSUM], ~uint64_t(0)); // none
+    store<uint64_t>(&b[GRID_OFF_BLIND_METADATA_OFFSET], 0);
+    store<uint32_t>(&b[GRID_OFF_BLIND_METADATA_COUNT], 0);
     // TreeData: the same counts, the new offsets (relative to the tree)
     const uint64_t tree = layout::GRID_SIZE;
     std::memcpy(&b[tree], src + tree, layout::TREE_SIZE);
-    store64(&b[tree + layout::TREE_OFF_NODE_OFFSET_ROOT], root - tree);
-    store64(&b[tree + layout::TREE_OFF_NODE_OFFSET_UPPER], n_upper ? upper - tree : 0);
-    store64(&b[tree + layout::TREE_OFF_NODE_OFFSET_LOWER], n_lower ? lower - tree : 0);
-    store64(&b[tree + layout::TREE_OFF_NODE_OFFSET_LEAF], n_leaf ? leaves - tree : 0);
+    store<uint64_t>(&b[tree + layout::TREE_OFF_NODE_OFFSET_ROOT], root - tree);
+    store<uint64_t>(&b[tree + layout::TREE_OFF_NODE_OFFSET_UPPER], n_upper ? upper - tree : 0);
+    store<uint64_t>(&b[tree + layout::TREE_OFF_NODE_OFFSET_LOWER], n_lower ? lower - tree : 0);
+    store<uint64_t>(&b[tree + layout::TREE_OFF_NODE_OFFSET_LEAF], n_leaf ? leaves - tree : 0);
 
     // Root: its box and tile count; background index 0; no stats
     const uint64_t src_root = uint64_t(s.root_word) * 4;
@@ -231,11 +239,12 @@ MadeIndexGrid make_index_grid(const ValidatedGrid &grid) {
         std::memcpy(&b[at], src + from, layout::ROOT_TILE_OFF_STATE + 4); // key, child, state
         const uint64_t child = view.tile_child(t);
         if (child != 0) {
-            store64(&b[at + layout::ROOT_TILE_OFF_CHILD], uint64_t(int64_t(new_node(2, child)) - int64_t(root)));
+            store<uint64_t>(&b[at + layout::ROOT_TILE_OFF_CHILD], uint64_t(int64_t(new_node(2, child)) - int64_t(root)));
         } else {
-            const float v = codec.tile_bound(src + view.tile_value(t));
+            float v[3] = { 0.f, 0.f, 0.f };
+            tile_value(view.tile_value(t), v);
             if (load<uint32_t>(src + from + layout::ROOT_TILE_OFF_STATE) != 0 || !is_background(v))
-                store64(&b[at + ci.root_tile_off_value], take(v));
+                store<uint64_t>(&b[at + ci.root_tile_off_value], take(v));
         }
     }
     // Internal nodes: header and masks as they are; children relocated,
@@ -251,26 +260,27 @@ MadeIndexGrid make_index_grid(const ValidatedGrid &grid) {
             for (uint32_t e = 0; e < table_count; ++e) {
                 uint8_t *entry = &b[at + off_table + 8 * uint64_t(e)];
                 if (view.child_bit(level, from, e)) {
-                    store64(entry, uint64_t(int64_t(new_node(level - 1, view.child(level, from, e))) -
+                    store<uint64_t>(entry, uint64_t(int64_t(new_node(level - 1, view.child(level, from, e))) -
                                             int64_t(at)));
                     continue;
                 }
-                const float v = codec.tile_bound(src + view.entry(level, from, e));
+                float v[3] = { 0.f, 0.f, 0.f };
+                tile_value(view.entry(level, from, e), v);
                 if (((load<uint32_t>(src + from + value_mask + 4 * (e >> 5)) >> (e & 31)) & 1u) ||
                     !is_background(v))
-                    store64(entry, take(v));
+                    store<uint64_t>(entry, take(v));
             }
         }
     }
     // Leaves: box, flags (no stats) and mask; the first index and the
     // prefix sums of the mask's popcounts
-    std::vector<float> decoded(layout::LEAF_TABLE_COUNT);
+    std::vector<float> decoded(layout::LEAF_TABLE_COUNT * channels);
     for (uint64_t i = 0; i < n_leaf; ++i) {
         const uint64_t from = view.node(0, i), at = leaves + i * ci.leaf_size;
         std::memcpy(&b[at], src + from, ci.leaf_off_table);
         b[at + layout::LEAF_OFF_BBOX_DIF_AND_FLAGS + 3] &= uint8_t(~0x10u);
         codec.leaf(src + from, decoded.data());
-        const uint64_t first = values.size() + 1;
+        const uint64_t first = values.size() / channels + 1;
         uint64_t prefix = 0, active = 0;
         for (uint32_t w = 0; w < 8; ++w) {
             if (w > 0)
@@ -279,19 +289,21 @@ MadeIndexGrid make_index_grid(const ValidatedGrid &grid) {
             for (uint32_t k = 0; k < 64; ++k) {
                 const uint32_t n = 64 * w + k;
                 if ((mask >> k) & 1u)
-                    take(decoded[n]);
+                    take(&decoded[size_t(channels) * n]);
                 else
-                    differs(decoded[n]);
+                    differs(&decoded[size_t(channels) * n]);
             }
             active += uint64_t(__builtin_popcountll(mask));
         }
-        store64(&b[at + ci.leaf_off_table], first);
-        store64(&b[at + ci.leaf_off_table + layout::ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM], prefix);
+        store<uint64_t>(&b[at + ci.leaf_off_table], first);
+        store<uint64_t>(&b[at + ci.leaf_off_table + layout::ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM], prefix);
     }
-    store64(&b[GRID_OFF_DATA1], values.size() + 1);
-    out.values.note = std::to_string(values.size()) + " active values of a " +
+    store<uint64_t>(&b[GRID_OFF_DATA1], values.size() / channels + 1);
+    out.values.note = std::to_string(values.size() / channels) + " active values of a " +
                       grid_type_name(s.grid_type) + " grid" +
-                      (s.grid_type == layout::GRID_TYPE_FLOAT ? "" : ", decoded to floats");
+                      (s.grid_type == layout::GRID_TYPE_FLOAT ? ""
+                       : channels == 3                         ? ", three floats each"
+                                                               : ", decoded to floats");
     return out;
 }
 

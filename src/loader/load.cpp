@@ -12,19 +12,28 @@ namespace nanovdb_loader {
 
 namespace {
 
+/// The value policy and reader plan of a validated grid
+DecodedGrid planned(ValidatedGrid grid, const std::string &name, uint64_t grid_bytes,
+                    InvalidValues policy) {
+    DecodedGrid d{ std::move(grid), {}, {}, {}, {}, grid_bytes };
+    d.warnings = apply_value_policy(d.grid, name, policy);
+    d.plan = plan_readers(d.grid);
+    return d;
+}
+
 /// Validation, value policy and reader plan of the grid in `dst`, an index
-/// grid with `values`
+/// grid with `values` when `indexed` (then owned by the result)
 DecodedGrid validate_in_place(const std::string &path, const std::string &name, void *dst,
                               uint64_t grid_bytes, InvalidValues policy,
                               IndexGridValues values, bool indexed) {
-    // (moving the vector into d keeps its floats where `index` points)
+    // (the vector moves into the result with its floats where `index` points)
     std::vector<float> owned = std::move(values.values);
-    const IndexValues index = indexed ? IndexValues{ owned.data(), owned.size(), values.background }
+    const IndexValues index = indexed ? IndexValues{ owned.data(), owned.size() / values.channels,
+                                                     values.background, values.channels }
                                       : IndexValues{};
-    DecodedGrid d{ validate_grid(path, dst, grid_bytes, index), {}, {}, std::move(owned),
-                   std::move(values.note), grid_bytes };
-    d.warnings = apply_value_policy(d.grid, name, policy);
-    d.plan = plan_readers(d.grid);
+    DecodedGrid d = planned(validate_grid(path, dst, grid_bytes, index), name, grid_bytes, policy);
+    d.index_values = std::move(owned);
+    d.index_note = std::move(values.note);
     return d;
 }
 
@@ -110,9 +119,18 @@ PreparedGrid prepare_grid(const GridSource &source, void *dst, uint64_t dst_byte
     return prepare_bounds(std::move(d), options);
 }
 
+PreparedGrid rebound_index_grid(const std::string &path, const std::string &name,
+                                const void *tree, uint64_t tree_bytes, IndexValues values,
+                                const PrepareOptions &options) {
+    return prepare_bounds(planned(validate_grid(path, tree, tree_bytes, values), name,
+                                  tree_bytes, options.invalid_values),
+                          options);
+}
+
 PreparedGrid prepare_bounds(DecodedGrid decoded, const PrepareOptions &options) {
     PreparedGrid p(std::move(decoded));
-    const bool vec3 = p.grid.summary().grid_type == layout::GRID_TYPE_VEC3F;
+    const bool vec3 = p.grid.summary().grid_type == layout::GRID_TYPE_VEC3F ||
+                      p.grid.index_values().channels == 3;
     p.box = options.volume_box ? lookup_box(*options.volume_box, options.ring)
                                : lookup_box(p.grid.summary(), options.ring);
     p.max = max_in_box(p.grid, p.box);
@@ -120,6 +138,13 @@ PreparedGrid prepare_bounds(DecodedGrid decoded, const PrepareOptions &options) 
     p.grid_max = p.grid.values().max;
     p.majorants = node_majorants(p.grid, options.majorant_ring);
     p.mean_bound = mean_bound(p.grid, p.majorants, p.box, p.max);
+    if (vec3 && options.spectral && p.grid.is_index_grid())
+        detail::fail(p.grid.path(), "grid \"" + p.grid.summary().name +
+                                        "\": Vec3f values of an index grid are colours, and a "
+                                        "spectral variant would turn them into spectral "
+                                        "coefficients, which gradients cannot pass through: "
+                                        "use an RGB variant, or raw=true to read the three "
+                                        "values as they are");
     if (vec3 && options.spectral) {
         // Last: the bounds above are of the colours. A converted value is
         // scale * S(coefficients), S in [0, 1], scale at most factor x the

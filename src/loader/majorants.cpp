@@ -183,7 +183,7 @@ float max_in_box(const ValidatedGrid &grid, const IndexBox &box) {
 std::array<float, 3> max_in_box_per_channel(const ValidatedGrid &grid, const IndexBox &box) {
     BoxMax m(grid, box, true);
     const float all = m.run();
-    if (detail::ValueCodec(grid.summary().grid_type).channels() == 1)
+    if (detail::ValueCodec(grid.summary().grid_type, &grid.index_values()).channels() == 1)
         return { all, all, all };
     return { m.channel_max[0], m.channel_max[1], m.channel_max[2] };
 }

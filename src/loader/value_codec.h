@@ -93,16 +93,22 @@ public:
         : m_t(*layout::value_type(grid_type)), m_c(*m_t.constants), m_index(index) {}
 
     bool indexed() const { return m_t.codec == layout::LeafCodec::OnIndex; }
-    /// Index grids: the value of value index i (<= count: validation checks)
-    float indexed_value(uint64_t i) const {
-        return i == 0 ? m_index->background : m_index->values[i - 1];
+    /// Index grids: the value of value index i (<= count: validation
+    /// checks), `channels` floats into out
+    void indexed_value(uint64_t i, float *out) const {
+        const uint32_t n = m_index->channels;
+        for (uint32_t k = 0; k < n; ++k)
+            out[k] = i == 0 ? m_index->background[k] : m_index->values[n * (i - 1) + k];
     }
     /// ... and where it is stored (nullptr: the background)
-    float *indexed_slot(uint64_t i) const { return i == 0 ? nullptr : m_index->values + (i - 1); }
+    float *indexed_slot(uint64_t i) const {
+        return i == 0 ? nullptr : m_index->values + m_index->channels * (i - 1);
+    }
 
     const layout::ValueType &type() const { return m_t; }
     const layout::GridTypeConstants &constants() const { return m_c; }
-    uint32_t channels() const { return m_t.channels; }
+    /// Floats per value (an index grid's: its values', 1 without them)
+    uint32_t channels() const { return indexed() ? (m_index ? m_index->channels : 1u) : m_t.channels; }
     bool quantized() const {
         return m_t.codec == layout::LeafCodec::Fixed || m_t.codec == layout::LeafCodec::FpN;
     }
@@ -116,7 +122,7 @@ public:
     /// The tile value at p: `channels` floats into out
     void tile(const uint8_t *p, float *out) const {
         if (indexed()) {
-            out[0] = indexed_value(load<uint64_t>(p));
+            indexed_value(load<uint64_t>(p), out);
             return;
         }
         if (m_t.codec == layout::LeafCodec::Half) {
@@ -133,7 +139,7 @@ public:
         return bound(v);
     }
     float bound(const float *v) const {
-        return m_t.channels == 1 ? v[0] : std::max(v[0], std::max(v[1], v[2]));
+        return channels() == 1 ? v[0] : std::max(v[0], std::max(v[1], v[2]));
     }
 
     /// log2 of the code width of a quantized leaf (Fp4/8/16: the type's;
@@ -154,7 +160,7 @@ public:
     void leaf_value(const uint8_t *leaf, uint32_t n, float *out) const {
         const uint8_t *table = leaf + m_c.leaf_off_table;
         switch (m_t.codec) {
-            case layout::LeafCodec::OnIndex: out[0] = indexed_value(onindex_leaf_index(leaf, n)); return;
+            case layout::LeafCodec::OnIndex: indexed_value(onindex_leaf_index(leaf, n), out); return;
             case layout::LeafCodec::Float32: out[0] = load<float>(table + 4 * n); return;
             case layout::LeafCodec::Half: out[0] = half_to_float(load<uint16_t>(table + 2 * n)); return;
             case layout::LeafCodec::Vec3f:
@@ -183,8 +189,9 @@ public:
             std::memcpy(out, leaf + m_c.leaf_off_table, 512 * 4 * m_t.channels);
             return;
         }
+        const uint32_t stride = channels();
         for (uint32_t n = 0; n < 512; ++n)
-            leaf_value(leaf, n, out + n);
+            leaf_value(leaf, n, out + stride * n);
     }
 
     /// Byte offset, within the leaf, of the bytes that hold value n (its

@@ -21,9 +21,9 @@ struct ValueRewriter {
         writable(grid);
         return grid.m_data;
     }
-    /// Index grids: the background's value (not in the values array)
-    static void set_index_background(ValidatedGrid &grid, float background) {
-        grid.m_index.background = background;
+    /// Index grids: the background's value, channel k (not in the values array)
+    static void set_index_background(ValidatedGrid &grid, uint32_t k, float background) {
+        grid.m_index.background[k] = background;
     }
     static void set_values(ValidatedGrid &grid, const ValueStats &stats,
                            std::vector<float> leaf_min, std::vector<float> leaf_max) {

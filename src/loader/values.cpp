@@ -197,19 +197,20 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
     const ValueCodec codec(s.grid_type, &grid.index_values());
     const uint32_t channels = codec.channels();
     const bool half = codec.type().codec == layout::LeafCodec::Half;
-    // Writes v at p as the type stores it (NaN != 0 too: compare bits);
-    // index grids: into their values, at the index stored at p
-    auto store = [&](uint8_t *p, float v) {
+    // Writes channel k of the value at p as the type stores it (NaN != 0
+    // too: compare bits); index grids: into their values, at the index
+    // stored at p
+    auto store = [&](uint8_t *p, uint32_t k, float v) {
         if (codec.indexed()) {
             if (float *slot = codec.indexed_slot(load<uint64_t>(p)))
-                *slot = v;
+                slot[k] = v;
             else
-                ValueRewriter::set_index_background(grid, v);
+                ValueRewriter::set_index_background(grid, k, v);
         } else if (half) {
             const uint16_t h = float_to_half(v); // v is a half or a replacement
             std::memcpy(p, &h, 2);                // (finite_max/min of halves, 0)
         } else {
-            std::memcpy(p, &v, 4);
+            std::memcpy(p + 4 * k, &v, 4);
         }
     };
     uint8_t *buf = ValueRewriter::data(grid);
@@ -220,7 +221,7 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
         for (uint32_t k = 0; k < channels; ++k) {
             const float w = repair(v[k]);
             if (std::memcmp(&w, &v[k], 4) != 0)
-                store(p + 4 * k, w);
+                store(p, k, w);
             after.add(w, byte);
         }
     });
@@ -238,12 +239,12 @@ SanitizeResult sanitize_values(ValidatedGrid &grid, const SanitizeOptions &optio
             changed = true;
             values[k] = w;
             if (codec.indexed()) {
-                if (float *slot = codec.indexed_slot(onindex_leaf_index(leaf, k)))
-                    *slot = w;
+                if (float *slot = codec.indexed_slot(onindex_leaf_index(leaf, k / channels)))
+                    slot[k % channels] = w;
                 else
-                    ValueRewriter::set_index_background(grid, w);
+                    ValueRewriter::set_index_background(grid, k % channels, w);
             } else if (!codec.quantized())
-                store(leaf + codec.leaf_value_offset(k / channels) + 4 * (k % channels), w);
+                store(leaf + codec.leaf_value_offset(k / channels), k % channels, w);
         }
         if (changed && codec.quantized()) {
             encode_quantized_leaf(leaf, values.data(), codec.log2_bits(leaf));

@@ -135,12 +135,14 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
 
  * - differentiable
    - |bool|
-   - ``true``: the grid (float, Half or quantized) becomes an index grid
-     (NanoVDB's OnIndex: its tree, with value indices) and one Float array
-     of its active voxels' and tiles' values, exposed as the differentiable
-     parameter ``data`` (nanovdb_loader/index_grid.h gives the order).
-     After ``params.update()``, ``max()`` follows the values. (Default:
-     ``false``)
+   - ``true``: the grid (float, Half, quantized or Vec3f) becomes an index
+     grid (NanoVDB's OnIndex: its tree, with value indices) and one Float
+     array of its active voxels' and tiles' values, exposed as the
+     differentiable parameter ``data`` (nanovdb_loader/index_grid.h gives
+     the order; a Vec3f grid's three channels interleaved: value i at
+     ``data[3 i .. 3 i + 2]``; in spectral variants only with
+     ``raw=true``). After ``params.update()``, ``max()`` follows the
+     values. (Default: ``false``)
 
  * - blind_channel, blind_component
    - |string|, |int|
@@ -370,7 +372,9 @@ public:
                 }
             }
         }
-        m_channel_count = m_second ? 6 : m_facts.grid_type == kVec3f ? 3 : 1;
+        m_channel_count = m_second ? 6
+                          : m_facts.grid_type == kVec3f || m_sampler.index_channels == 3 ? 3
+                                                                                          : 1;
         m_grid_name = m_facts.name;
         // Stochastic filters' offsets in eval(): a hash of the position and
         // of this seed, so that volumes of other files or grids (a medium's
@@ -952,9 +956,6 @@ private:
         for (const std::string &warning : g.warnings)
             Log(Warn, "%s", warning);
         if (g.grid.is_index_grid()) {
-            if (six)
-                Throw("nanovdbvolume: \"%s\": index grids hold one channel; a 6-channel "
-                      "volume needs two Vec3f grids", m_filename);
             // The index grid's tree is smaller than the grid it was made
             // from, or than the file's grid with its blind data: a block of
             // its size, so that the backend holds the tree and the values once
@@ -973,6 +974,7 @@ private:
                 m_index_tree_host.assign((const uint8_t *) host.get(), // for parameters_changed)
                                          (const uint8_t *) host.get() + g.grid_bytes);
             m_index_tree_bytes = g.grid_bytes;
+            m_index_background = g.grid.index_values().background;
             facts.value_bytes = g.index_values.size() * sizeof(float);
         }
         const loader::GridSummary &summary = g.grid.summary();
@@ -1025,7 +1027,8 @@ private:
     void update_index_max() {
         namespace loader = nanovdb_loader;
         auto &values = m_sampler.index_values;
-        float largest = m_background_host;
+        const uint32_t channels = m_sampler.index_channels;
+        float largest[3] = { m_index_background[0], m_index_background[1], m_index_background[2] };
         if constexpr (dr::is_jit_v<Float>) {
             if (m_invalid_values == loader::InvalidValues::Clamp) {
                 Float v = values;
@@ -1038,35 +1041,51 @@ private:
                 using D = decltype(detached);
                 D bad = dr::select(dr::isnan(detached) | dr::isinf(detached), 1.f, 0.f),
                   negative = dr::select(detached < 0.f, 1.f, 0.f);
-                dr::Array<D, 3> r(dr::max(detached), dr::sum(bad), dr::sum(negative));
+                // each channel's largest (3 channels: values interleaved)
+                dr::Array<D, 3> top;
+                if (channels == 3) {
+                    dr::Array<D, 3> v3 = dr::unravel<dr::Array<D, 3>>(detached);
+                    for (int k = 0; k < 3; ++k)
+                        top[k] = dr::max(v3[k]);
+                } else {
+                    top = dr::Array<D, 3>(dr::max(detached));
+                }
+                dr::Array<D, 5> r(top[0], top[1], top[2], dr::sum(bad), dr::sum(negative));
                 dr::eval(r);
                 // (the read waits for the backend's queue: the render and
                 // backward pass before it, on LLVM, finish here)
-                const float host[3] = { r[0].entry(0), r[1].entry(0), r[2].entry(0) };
-                if (host[1] > 0.f)
+                float host[5];
+                for (int k = 0; k < 5; ++k)
+                    host[k] = r[k].entry(0);
+                if (host[3] > 0.f)
                     Throw("nanovdbvolume: \"%s\": after an update of \"data\": %.0f values are "
                           "NaN or infinite; only finite values can be rendered. Set "
                           "invalid_values=\"clamp\" to replace NaN by 0 and +Inf by the "
-                          "largest finite value", m_filename, host[1]);
-                if (host[2] > 0.f)
+                          "largest finite value", m_filename, host[3]);
+                if (host[4] > 0.f)
                     Log(Warn, "nanovdbvolume: \"%s\": after an update of \"data\": %.0f "
                               "negative values (invalid_values=\"clamp\" replaces them by 0)",
-                        m_filename, host[2]);
-                largest = std::max(largest, host[0]);
+                        m_filename, host[4]);
+                for (int k = 0; k < 3; ++k)
+                    largest[k] = std::max(largest[k], host[k]);
             }
         } else {
-            for (float &x : values) {
+            for (size_t i = 0; i < values.size(); ++i) {
+                float &x = values[i];
                 if (m_invalid_values == loader::InvalidValues::Clamp && !(x >= 0.f))
                     x = 0.f;
                 if (!std::isfinite(x))
                     Throw("nanovdbvolume: \"%s\": after an update of \"data\": a value is "
                           "NaN or infinite", m_filename);
-                largest = std::max(largest, x);
+                float &l = largest[channels == 3 ? i % 3 : 0];
+                l = std::max(l, x);
             }
+            if (channels != 3)
+                largest[1] = largest[2] = largest[0];
         }
-        m_facts.max = std::max(largest, m_max_value_given);
+        m_facts.max = std::max({ largest[0], largest[1], largest[2], m_max_value_given });
         for (int k = 0; k < 3; ++k)
-            m_facts.max3[k] = m_facts.max;
+            m_facts.max3[k] = std::max(largest[k], m_max_value_given);
         m_sampler.set_bounds(m_facts.max, m_facts.max3);
         m_index_bounds_stale = true;
     }
@@ -1087,8 +1106,9 @@ private:
 
     /**
      * The per-node majorants and max_in_box() from the values and the tree
-     * in host memory, through the loader's own passes (validation's value
-     * statistics, node_majorants, mean_bound): LLVM and scalar variants read
+     * in host memory, through the loader's own passes (rebound_index_grid:
+     * validation's value statistics, the value policy, node_majorants,
+     * mean_bound): LLVM and scalar variants read
      * both in place; CUDA copies the values to the host (its tree's copy
      * was kept at load).
      */
@@ -1114,16 +1134,14 @@ private:
             host_values = values.data();
         }
         try {
-            loader::IndexValues index{ const_cast<float *>(host_values), count,
-                                       m_background_host };
-            loader::DecodedGrid d{ loader::validate_grid(m_filename, (const void *) index_tree_host(),
-                                                         m_index_tree_bytes, index),
-                                   {}, {}, {}, {}, m_index_tree_bytes };
-            d.warnings = loader::apply_value_policy(d.grid, m_grid_name, m_invalid_values);
-            for (const std::string &warning : d.warnings)
+            loader::PreparedGrid g = loader::rebound_index_grid(
+                m_filename, m_grid_name, index_tree_host(), m_index_tree_bytes,
+                loader::IndexValues{ const_cast<float *>(host_values),
+                                     count / m_sampler.index_channels, m_index_background,
+                                     m_sampler.index_channels },
+                m_index_options);
+            for (const std::string &warning : g.warnings)
                 Log(Warn, "%s", warning);
-            d.plan = loader::plan_readers(d.grid);
-            loader::PreparedGrid g = loader::prepare_bounds(std::move(d), m_index_options);
             // A max_value above the values stays (gridvolume keeps it too)
             g.max = std::max(g.max, m_max_value_given);
             nanovdb_mitsuba::SamplerSetup set =
@@ -1318,6 +1336,7 @@ private:
     nanovdb_loader::PrepareOptions m_index_options; // to bound it again
     std::optional<nanovdb_loader::IndexBox> m_index_volume_box;
     std::vector<uint8_t> m_index_tree_host; // CUDA: the tree, for parameters_changed
+    std::array<float, 3> m_index_background{}; // index 0's value (per channel)
     /// traverse()'s copies of what it exposes
     struct {
         uint32_t grid_type = 0, grid_class = 0, channels = 1;

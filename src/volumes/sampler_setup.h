@@ -54,7 +54,8 @@ SamplerSetup set_up_sampler(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader
     namespace loader = nanovdb_loader;
     using UInt32 = drjit::uint32_array_t<Float>;
     const loader::GridSummary &summary = g.grid.summary();
-    const bool vec3 = summary.grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
+    const bool vec3 = summary.grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F ||
+                      g.grid.index_values().channels == 3;
     s.reader = nanovdb_drjit::Reader<UInt32>::from_plan(g.plan);
     SamplerSetup out = set_up_bounds(s, g, clamp, volume_box);
     if (vec3 && !g.scales.values.empty()) {
@@ -64,7 +65,7 @@ SamplerSetup set_up_sampler(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader
     }
     if (g.grid.is_index_grid())
         s.set_index_values(g.index_values.data(), g.index_values.size(),
-                           g.grid.index_values().background);
+                           g.grid.index_values().background, g.grid.index_values().channels);
     s.set_grid(std::move(host), word_count);
     return out;
 }
@@ -80,7 +81,8 @@ SamplerSetup set_up_bounds(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader:
     namespace loader = nanovdb_loader;
     using UInt32 = drjit::uint32_array_t<Float>;
     const loader::GridSummary &summary = g.grid.summary();
-    const bool vec3 = summary.grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F;
+    const bool vec3 = summary.grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F ||
+                      g.grid.index_values().channels == 3;
     SamplerSetup out;
     out.max = g.max;
     for (int k = 0; k < 3; ++k)

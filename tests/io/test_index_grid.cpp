@@ -24,8 +24,10 @@ using nanovdb_drjit::layout::GRID_TYPE_ONINDEX;
 struct Made {
     nio::MadeIndexGrid made;
     Bytes bytes;
-    nio::IndexValues index() { return { made.values.values.data(), made.values.values.size(),
-                                        made.values.background }; }
+    nio::IndexValues index() {
+        return { made.values.values.data(), made.values.values.size() / made.values.channels,
+                 made.values.background, made.values.channels };
+    }
 };
 
 Made make(const Handle &h, const std::string &label) {
@@ -124,7 +126,7 @@ TEST_CASE("make_index_grid: the active values, in the documented order") {
         CHECK(vals[0] == 100.f);
         CHECK(vals[1] == -50.f);
         CHECK(vals[2] == 7.f);
-        CHECK(m.made.values.background == 0.5f);
+        CHECK(m.made.values.background[0] == 0.5f);
         const nio::ValidatedGrid v = nio::validate_grid("made", m.bytes.data(), m.bytes.size(),
                                                         m.index());
         CHECK(v.values().max == 100.f);
@@ -238,7 +240,7 @@ TEST_CASE("index grids: values from blind channels") {
         v.insert(v.begin(), 0.25f);
         auto [d, dst] = decode(with_channel("density", 4, 1, floats(v), v.size()));
         CHECK(d.index_values == want);
-        CHECK(d.grid.index_values().background == 0.25f);
+        CHECK(d.grid.index_values().background[0] == 0.25f);
         CHECK(d.grid_bytes == tree); // the blind data dropped
     }
     SUBCASE("fVDB's tensor [N, 2]: a component of each row") {
