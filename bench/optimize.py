@@ -7,6 +7,7 @@ measure what one optimization step costs.
         [--spp 8] [--ref-spp 512] [--iters 60] [--lr 0.05] [--max-depth 8]
         [--filter trilinear] [--out bench/results/optimize]
     python3 bench/optimize.py --target cloud.nvdb --plugin nanovdbvolume --reference cloud.vol
+    python3 bench/optimize.py --compare bench/results/optimize   (the runs there, one plot a case)
 
 The scene is the benchmark's (bench/scene.py: the volume in a unit cube,
 albedo 0.9, sky + sun, scale 40) with `prbvolpath` (max_depth --max-depth)
@@ -29,7 +30,10 @@ target's). Per run: the bytes of an optimization step, counted from the
 arrays (values, gradient, Adam's two moments: 16 bytes per value; for
 nanovdbvolume also its tree and majorant table) and as the process's peak
 RSS above its level after loading, and the time per iteration (median of
-the warm ones).
+the warm ones). A step's time grows with the densities (longer paths), and
+two runs' volumes differ at the same iteration, so the plugins are also
+timed at one volume, the target's values: render + backward of every view,
+--timing-rounds times after an untimed round (step_at_target_s).
 
 A measurement, not a test; results: OUT/PLUGIN_TARGET.{json,csv,png}.
 """
@@ -68,6 +72,8 @@ def main():
     ap.add_argument("--iters", type=int, default=60)
     ap.add_argument("--lr", type=float, default=0.05)
     ap.add_argument("--max-depth", type=int, default=8)
+    ap.add_argument("--timing-rounds", type=int, default=3,
+                    help="rounds over the views timing render + backward at the target's values")
     ap.add_argument("--filter", default="trilinear",
                     choices=["nearest", "trilinear", "stochastic_trilinear"],
                     help="nanovdbvolume's filter_type while optimizing (gridvolume: trilinear "
@@ -132,6 +138,36 @@ def main():
         # over the whole box: a voxel outside the sparse tree is 0 in both
         return float(np.sqrt(np.sum((values - truth) ** 2) / box_voxels))
 
+    # The time of a step at the same volume for both plugins: the target's
+    # values (a step's time grows with the densities, so iterations of two
+    # runs, whose volumes differ, do not compare): render + backward of
+    # each view, after one untimed pass, median over --timing-rounds
+    start_values = type(params[pkey])(params[pkey])
+    if isinstance(params[pkey], mi.TensorXf):
+        params[pkey] = mi.TensorXf(truth.astype(np.float32).reshape(params[pkey].shape))
+    else:
+        params[pkey] = mi.Float(truth.astype(np.float32))
+    params.update()
+    timed = []
+    for r in range(a.timing_rounds + 1):
+        for v in range(a.views):
+            dr.enable_grad(params[pkey])
+            params.update()
+            t0 = time.perf_counter()
+            img = mi.render(scene, params, sensor=v, seed=r * a.views + v, spp=a.spp)
+            dr.backward(dr.mean(dr.square(img - refs[v])))
+            g = dr.grad(params[pkey])
+            dr.eval(g)
+            dr.sync_thread()
+            if r > 0:
+                timed.append(time.perf_counter() - t0)
+            dr.disable_grad(params[pkey])
+    step_at_target = statistics.median(timed)
+    print(f"render + backward at the target's values: {step_at_target:.3f} s (median of "
+          f"{len(timed)})", flush=True)
+    params[pkey] = start_values
+    params.update()
+
     optimizer = mi.ad.Adam(lr=a.lr)
     optimizer[pkey] = params[pkey]
     params.update(optimizer)
@@ -166,6 +202,7 @@ def main():
         step_bytes_counted=16 * n_values + tree_bytes,
         peak_rss_above_loaded=max(peak_rss_bytes() - rss_loaded, 0),
         time_per_iter_s=statistics.median(warm),
+        step_at_target_s=step_at_target,
         volume_rmse_start=box_rmse(np.full_like(truth, truth.mean() * 0.1)),
         volume_rmse_end=rows[-1]["volume_rmse"], loss_end=rows[-1]["loss"])
     print(json.dumps(summary, indent=1))
@@ -202,5 +239,39 @@ def main():
     print(f"wrote {stem}.json, .csv, .png")
 
 
+def compare(out):
+    """One figure per case of the runs in `out`: image loss against
+    iteration and against time, every plugin and filter (OUT/compare_CASE.png)"""
+    import glob
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    runs = {}
+    for path in sorted(glob.glob(os.path.join(out, "*.json"))):
+        data = json.load(open(path))
+        if "summary" not in data:
+            continue
+        s = data["summary"]
+        case = os.path.basename(path)[:-5].split("_", 1)[1].replace("_stochastic_trilinear", "")
+        runs.setdefault(case, []).append((f"{s['plugin']}, {s.get('filter', 'trilinear')}", data))
+    for case, rs in runs.items():
+        fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
+        for label, data in rs:
+            rows = data["rows"]
+            ax[0].semilogy([r["iter"] for r in rows], [r["loss"] for r in rows], label=label)
+            ax[1].semilogy([r["elapsed_s"] for r in rows], [r["loss"] for r in rows], label=label)
+        ax[0].set_xlabel("iteration")
+        ax[1].set_xlabel("time [s]")
+        ax[0].set_ylabel("image loss (one view)")
+        ax[0].legend(fontsize=8)
+        fig.suptitle(f"{case}: prbvolpath + Adam, {rs[0][1]['summary']['variant']}")
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, f"compare_{case}.png"), dpi=100)
+        print(f"wrote {os.path.join(out, f'compare_{case}.png')}")
+
+
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) == 3 and sys.argv[1] == "--compare":
+        compare(sys.argv[2])
+    else:
+        main()

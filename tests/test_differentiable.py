@@ -181,6 +181,19 @@ def medium_scene(volume, integrator="prbvolpath", res=24, spp=16, scale=3.0, max
     })
 
 
+def image_mean_gradient(volume, seed=7):
+    """prbvolpath's gradient of medium_scene's image mean with respect to the
+    volume's "data", flat"""
+    scene = medium_scene(volume)
+    params = mi.traverse(scene)
+    key = data_key(params)
+    dr.enable_grad(params[key])
+    params.update()
+    image = mi.render(scene, params, seed=seed)
+    dr.backward(dr.mean(image))
+    return np.array(dr.grad(params[key])).ravel()
+
+
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_mono"])
 @pytest.mark.parametrize("filter_type", ["nearest", "trilinear"])
 def test05_gradients_equal_gridvolume(make_grid, variant, filter_type):
@@ -189,17 +202,7 @@ def test05_gradients_equal_gridvolume(make_grid, variant, filter_type):
     sparse = load_nvdb(nvdb, filter_type=filter_type, differentiable=True, wrap_mode="clamp")
     dense = load_dense(vol, filter_type=filter_type)
     owner, read, covered = data_coordinates(sparse)
-    grads = []
-    for volume in (sparse, dense):
-        scene = medium_scene(volume)
-        params = mi.traverse(scene)
-        key = data_key(params)
-        dr.enable_grad(params[key])
-        params.update()
-        image = mi.render(scene, params, seed=7)
-        dr.backward(dr.mean(image))
-        grads.append(np.array(dr.grad(params[key])).ravel())
-    g_sparse, g_dense = grads
+    g_sparse, g_dense = (image_mean_gradient(v) for v in (sparse, dense))
     res = np.array(mi.traverse(sparse)["index_dims"])
     dense_grid = g_dense.reshape(res[2], res[1], res[0])  # z, y, x
     flat = dense_grid.transpose(2, 1, 0).ravel()           # x-major like voxel_centres' order
@@ -536,18 +539,8 @@ def test11_vec3f_gradients_equal_gridvolume(variant_llvm_ad_rgb):
     params.update()
     owner = {int(e) - 1: tuple(v) for e, v in zip(read, ijk) if e > 0}
     assert len(owner) == n == 6 ** 3
-    grads = []
-    for volume in (sparse, dense):
-        scene = medium_scene(volume)
-        sp = mi.traverse(scene)
-        key = data_key(sp)
-        dr.enable_grad(sp[key])
-        sp.update()
-        image = mi.render(scene, sp, seed=7)
-        dr.backward(dr.mean(image))
-        grads.append(np.array(dr.grad(sp[key])))
-    g_sparse = grads[0].reshape(n, 3)
-    g_dense = grads[1].reshape(d.shape)  # z, y, x, c
+    g_sparse = image_mean_gradient(sparse).reshape(n, 3)
+    g_dense = image_mean_gradient(dense).reshape(d.shape)  # z, y, x, c
     want = np.array([g_dense[owner[i][2], owner[i][1], owner[i][0]] for i in range(n)])
     scale = np.abs(want).max()
     assert scale > 0
