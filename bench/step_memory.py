@@ -16,7 +16,8 @@ time of the second step. --sweep runs each volume in a child process (one
 at a time; a child killed or out of memory is reported, not fatal) and
 writes step_memory.json and step_memory.md to --out: bytes per value of
 the peak, and from the slope over the volumes of each plugin, the largest
-volume whose peak fits in --memory-gb.
+volume whose peak fits in --memory-gb. A child whose RSS passes --stop-gb
+is stopped and reported as such.
 
 A measurement, not a test.
 """
@@ -94,12 +95,28 @@ def sweep(a):
             cmd += ["--build", a.build]
         print("running", " ".join(cmd), flush=True)
         t = time.perf_counter()
-        r = subprocess.run(cmd, capture_output=True, text=True)
-        line = [l for l in r.stdout.splitlines() if l.startswith("{")]
-        if r.returncode != 0 or not line:
-            rows.append(dict(volume=os.path.abspath(path), failed=True, returncode=r.returncode,
-                             stderr=r.stderr[-2000:], wall_s=time.perf_counter() - t))
-            print(f"  failed (exit {r.returncode})", flush=True)
+        # A watchdog: the child is stopped once its RSS passes --stop-gb (the
+        # machine's other processes keep their memory; no OOM killer)
+        child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        stopped = False
+        while child.poll() is None:
+            try:
+                with open(f"/proc/{child.pid}/statm") as f:
+                    rss = int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+            except OSError:
+                rss = 0
+            if rss > a.stop_gb * 1e9:
+                child.kill()
+                stopped = True
+            time.sleep(0.05)
+        out, err = child.communicate()
+        line = [l for l in out.splitlines() if l.startswith("{")]
+        if child.returncode != 0 or not line:
+            rows.append(dict(volume=os.path.abspath(path), failed=True, returncode=child.returncode,
+                             stopped_at_gb=a.stop_gb if stopped else None,
+                             stderr=err[-2000:], wall_s=time.perf_counter() - t))
+            print(f"  failed (exit {child.returncode}" +
+                  (f", stopped at {a.stop_gb:g} GB of RSS)" if stopped else ")"), flush=True)
             continue
         row = json.loads(line[-1])
         row["wall_s"] = time.perf_counter() - t
@@ -129,7 +146,9 @@ def sweep(a):
     for r in rows:
         name = os.path.basename(r["volume"])
         if r.get("failed"):
-            lines.append(f"| {name} | | | | | failed (exit {r['returncode']}) | | |")
+            why = (f"stopped at {r['stopped_at_gb']:g} GB" if r.get("stopped_at_gb")
+                   else f"failed (exit {r['returncode']})")
+            lines.append(f"| {name} | | | | | {why} | | |")
             continue
         lines.append(f"| {name} | {r['plugin']} | {r['values']:,} | {r['file_bytes'] / 1e9:.2f} GB | "
                      f"{r['rss_loaded'] / 1e9:.2f} GB | {r['peak_rss'] / 1e9:.2f} GB | "
@@ -153,6 +172,8 @@ def main():
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--build", default="", help="a build folder holding plugins/")
     ap.add_argument("--memory-gb", type=float, default=24.0)
+    ap.add_argument("--stop-gb", type=float, default=21.0,
+                    help="--sweep: a child whose RSS passes this is stopped (and reported)")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "optimize"))
     a = ap.parse_args()
     if a.sweep:
