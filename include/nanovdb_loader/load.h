@@ -20,6 +20,7 @@
 #include <nanovdb_loader/spectral.h>
 #include <nanovdb_loader/validation.h>
 #include <nanovdb_loader/values.h>
+#include <nanovdb_drjit/layout.h>
 
 #include <array>
 #include <optional>
@@ -99,6 +100,13 @@ struct PrepareOptions {
     /// Index grids from files: the blind channel holding their values
     BlindSelection blind;
 };
+
+/// Whether `grid`'s values are 3-vectors: a Vec3f grid, or an index grid of
+/// three floats a value
+inline bool vec3_values(const ValidatedGrid &grid) {
+    return grid.summary().grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F ||
+           grid.index_values().channels == 3;
+}
 
 /// A decoded grid and what a renderer needs to bound its lookups
 struct PreparedGrid : DecodedGrid {

@@ -129,15 +129,7 @@ PreparedGrid rebound_index_grid(const std::string &path, const std::string &name
 
 PreparedGrid prepare_bounds(DecodedGrid decoded, const PrepareOptions &options) {
     PreparedGrid p(std::move(decoded));
-    const bool vec3 = p.grid.summary().grid_type == layout::GRID_TYPE_VEC3F ||
-                      p.grid.index_values().channels == 3;
-    p.box = options.volume_box ? lookup_box(*options.volume_box, options.ring)
-                               : lookup_box(p.grid.summary(), options.ring);
-    p.max = max_in_box(p.grid, p.box);
-    p.max3 = vec3 ? max_in_box_per_channel(p.grid, p.box) : std::array<float, 3>{ p.max, p.max, p.max };
-    p.grid_max = p.grid.values().max;
-    p.majorants = node_majorants(p.grid, options.majorant_ring);
-    p.mean_bound = mean_bound(p.grid, p.majorants, p.box, p.max);
+    const bool vec3 = vec3_values(p.grid);
     if (vec3 && options.spectral && p.grid.is_index_grid())
         detail::fail(p.grid.path(), "grid \"" + p.grid.summary().name +
                                         "\": Vec3f values of an index grid are colours, and a "
@@ -145,6 +137,13 @@ PreparedGrid prepare_bounds(DecodedGrid decoded, const PrepareOptions &options) 
                                         "coefficients, which gradients cannot pass through: "
                                         "use an RGB variant, or raw=true to read the three "
                                         "values as they are");
+    p.box = options.volume_box ? lookup_box(*options.volume_box, options.ring)
+                               : lookup_box(p.grid.summary(), options.ring);
+    p.max = max_in_box(p.grid, p.box);
+    p.max3 = vec3 ? max_in_box_per_channel(p.grid, p.box) : std::array<float, 3>{ p.max, p.max, p.max };
+    p.grid_max = p.grid.values().max;
+    p.majorants = node_majorants(p.grid, options.majorant_ring);
+    p.mean_bound = mean_bound(p.grid, p.majorants, p.box, p.max);
     if (vec3 && options.spectral) {
         // Last: the bounds above are of the colours. A converted value is
         // scale * S(coefficients), S in [0, 1], scale at most factor x the

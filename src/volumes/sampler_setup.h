@@ -53,9 +53,7 @@ SamplerSetup set_up_sampler(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader
                             const std::optional<nanovdb_loader::IndexBox> &volume_box) {
     namespace loader = nanovdb_loader;
     using UInt32 = drjit::uint32_array_t<Float>;
-    const loader::GridSummary &summary = g.grid.summary();
-    const bool vec3 = summary.grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F ||
-                      g.grid.index_values().channels == 3;
+    const bool vec3 = loader::vec3_values(g.grid);
     s.reader = nanovdb_drjit::Reader<UInt32>::from_plan(g.plan);
     SamplerSetup out = set_up_bounds(s, g, clamp, volume_box);
     if (vec3 && !g.scales.values.empty()) {
@@ -81,8 +79,7 @@ SamplerSetup set_up_bounds(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader:
     namespace loader = nanovdb_loader;
     using UInt32 = drjit::uint32_array_t<Float>;
     const loader::GridSummary &summary = g.grid.summary();
-    const bool vec3 = summary.grid_type == nanovdb_drjit::layout::GRID_TYPE_VEC3F ||
-                      g.grid.index_values().channels == 3;
+    const bool vec3 = loader::vec3_values(g.grid);
     SamplerSetup out;
     out.max = g.max;
     for (int k = 0; k < 3; ++k)
