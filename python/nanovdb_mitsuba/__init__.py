@@ -26,7 +26,7 @@ import shutil
 __version__ = "0.3.0"  # the package's version (pyproject.toml reads it here)
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
-_PLUGINS = ("nanovdbvolume", "volpathlocal")
+_PLUGINS = ("nanovdbvolume", "volpathlocal", "emissiveheterogeneous")
 
 
 def plugin_root():

@@ -9,7 +9,8 @@
                        i.e. with density mu(t) exp(-int_0^t mu). At each it
                        calls the estimator's `collide`, which says whether the
                        lane goes on.
-      delta_tracking() the first real collision (the path's free flight)
+      delta_tracking() the first real collision (the path's free flight), and
+                       an emissive medium's emission along the way
       ratio_tracking() the transmittance estimate (shadow rays)
 
     Both estimators are unbiased for any majorant that bounds the medium's
@@ -26,6 +27,7 @@
 #include <mitsuba/render/medium.h>
 #include <mitsuba/render/sampler.h>
 
+#include <nanovdb_mitsuba/emissive_medium.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 
 #include <tuple>
@@ -41,6 +43,7 @@ template <typename Float, typename Spectrum> struct Tracking {
     using Majorants = LocalMajorants<Float, Spectrum>;
     using Walk = typename Majorants::Walk;
     using WalkRay = typename Majorants::WalkRay;
+    using Emissive = EmissiveMedium<Float, Spectrum>;
 
     /// A medium tracked through its volume's local majorants
     struct TrackedMedium {
@@ -49,6 +52,7 @@ template <typename Float, typename Spectrum> struct Tracking {
         ScalarFloat scale;        ///< the medium's density scale
         ScalarFloat max_majorant; ///< scale x the largest segment bound
         bool stochastic;          ///< its lookups take random offsets (stochastic filters)
+        const Emissive *emissive; ///< the medium's emission (nullptr: it emits none)
     };
 
     /// A flight through a tracked medium: the walk, the position t along the
@@ -104,13 +108,12 @@ template <typename Float, typename Spectrum> struct Tracking {
         return mei;
     }
 
-    /// The medium's coefficients (sigma_s, sigma_n, sigma_t) at distance t
-    /// along the ray. A volume with a stochastic filter reads one voxel drawn
-    /// with offsets from the sampler (three numbers per tentative collision;
-    /// none otherwise), given to it for this call only
-    static auto coefficients(const TrackedMedium &k, const Ray3f &ray, const Float &t,
-                             const Float &mint, Sampler *sampler, const Mask &hit) {
-        MediumInteraction3f mei = interaction_at(k, ray, t, mint);
+    /// The medium's coefficients (sigma_s, sigma_n, sigma_t) at `mei`. A
+    /// volume with a stochastic filter reads one voxel drawn with offsets
+    /// from the sampler (three numbers per tentative collision; none
+    /// otherwise), given to it for this call only
+    static auto coefficients(const TrackedMedium &k, const MediumInteraction3f &mei,
+                             Sampler *sampler, const Mask &hit) {
         if (!k.stochastic)
             return k.medium->get_scattering_coefficients(mei, hit);
         Point2f u2 = sampler->next_2d(hit);
@@ -237,6 +240,8 @@ template <typename Float, typename Spectrum> struct Tracking {
         Mask real;                    ///< a real collision at mei (else none before tmax)
         MediumInteraction3f mei;
         UnpolarizedSpectrum weight;   ///< the path throughput's factor (every lane)
+        UnpolarizedSpectrum emitted;  ///< the emission met on the way, to add to the
+                                      ///< path's radiance times its throughput
         UInt32 tripped;               ///< loop bounds that stopped the flight (bits)
     };
 
@@ -248,24 +253,41 @@ template <typename Float, typename Spectrum> struct Tracking {
      * a grey extinction), times mu_s / mean(mu_t) at the real one (a path
      * that meets no real collision keeps the product of the null factors):
      * volpath's estimator, with the local majorant mu.
+     *
+     * Emission (an emissive medium, k.emissive): pbrt-v4's estimator, at
+     * every tentative collision, real or null, before it is resolved, adds
+     *     W x sigma_a(t) Le(t) / mu,   sigma_a = sigma_t - sigma_s,
+     * W the product of the null factors before it. Tentative collisions
+     * come with density mu(t) exp(-int_0^t mu), and a flight reaches one at
+     * t with probability x weight W whose mean is the transmittance T(t)
+     * (per channel, ratio tracking's identity), so the sum's mean is
+     * int_0^d T(t) sigma_a(t) Le(t) dt, the emission the ray collects. It
+     * needs no bound on Le; mu must bound sigma_t (it does). A stochastic
+     * lookup's sigma_t is an unbiased estimate independent of Le's lookup,
+     * so the product stays unbiased.
      */
     static Collision delta_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
                                     const Float &coarse_depth, Sampler *sampler, Mask active) {
         auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
         struct State {
-            UnpolarizedSpectrum weight, sigma_s, sigma_t;
+            UnpolarizedSpectrum weight, sigma_s, sigma_t, emitted;
             Float majorant;
             Mask real;
-            DRJIT_STRUCT(State, weight, sigma_s, sigma_t, majorant, real)
+            DRJIT_STRUCT(State, weight, sigma_s, sigma_t, emitted, majorant, real)
         } st = { UnpolarizedSpectrum(1.f), dr::zeros<UnpolarizedSpectrum>(),
-                 dr::zeros<UnpolarizedSpectrum>(), Float(0.f), Mask(false) };
+                 dr::zeros<UnpolarizedSpectrum>(), dr::zeros<UnpolarizedSpectrum>(), Float(0.f),
+                 Mask(false) };
         Flight f = sample_t_maj(
             k, wr, mint, maxt, sampler, st, DeltaLoop, active,
             [k, ray, mint](State &s, const Float &t, const Float &mu, Sampler *sampler_,
                            const Mask &hit) {
                 Float xi = sampler_->next_1d(hit);
-                auto [sigma_s, sigma_n, sigma_t] = coefficients(k, ray, t, mint, sampler_, hit);
+                MediumInteraction3f mei = interaction_at(k, ray, t, mint);
+                auto [sigma_s, sigma_n, sigma_t] = coefficients(k, mei, sampler_, hit);
                 DRJIT_MARK_USED(sigma_n);
+                if (k.emissive) // (traced only for an emissive medium)
+                    dr::masked(s.emitted, hit) += s.weight * (sigma_t - sigma_s) *
+                                                  k.emissive->eval_emission(mei, hit) / mu;
                 Float p_real = dr::mean(sigma_t) / mu;
                 Mask real = hit && (xi < p_real), null = hit && !real;
                 dr::masked(s.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));
@@ -280,6 +302,7 @@ template <typename Float, typename Spectrum> struct Tracking {
         Collision c;
         c.real = st.real;
         c.tripped = f.tripped;
+        c.emitted = st.emitted;
         c.mei = interaction_at(k, ray, dr::select(st.real, f.t, dr::Infinity<Float>), mint);
         c.mei.p = ray(f.t);
         c.mei.sigma_s = st.sigma_s;
@@ -307,7 +330,8 @@ template <typename Float, typename Spectrum> struct Tracking {
             k, wr, mint, maxt, sampler, tr, RatioLoop, active,
             [k, ray, mint](UnpolarizedSpectrum &tr_, const Float &t, const Float &mu,
                            Sampler *sampler_, const Mask &hit) {
-                auto [sigma_s, sigma_n, sigma_t] = coefficients(k, ray, t, mint, sampler_, hit);
+                auto [sigma_s, sigma_n, sigma_t] =
+                    coefficients(k, interaction_at(k, ray, t, mint), sampler_, hit);
                 DRJIT_MARK_USED(sigma_s);
                 DRJIT_MARK_USED(sigma_n);
                 dr::masked(tr_, hit) *= (mu - sigma_t) / mu;

@@ -11,6 +11,7 @@
 #include <mitsuba/render/shape.h>
 #include <mitsuba/render/volume.h>
 
+#include <nanovdb_mitsuba/emissive_medium.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
 
@@ -352,6 +353,10 @@ public:
                     typename Tracker::Collision c = Tracker::delta_tracking(
                         k, ray, si.t, m_coarse_depth, sampler, in_k);
                     dr::masked(mei, in_k) = c.mei;
+                    // volpathlocal: an emissive medium's emission along the flight
+                    if (k.emissive)
+                        dr::masked(result, in_k) +=
+                            throughput * depolarizer<Spectrum>(c.emitted);
                     dr::masked(throughput, in_k) *= c.weight;
                     dr::masked(ls.tripped, in_k) |= c.tripped;
                 }
@@ -824,6 +829,17 @@ private:
             // (scale 0: nothing to track, and no collision either way)
             if (!v || !volume || !p.has_scale || !(p.scale > 0.f))
                 continue;
+            // volpathlocal: an emissive medium (emissive_medium.h) is always
+            // tracked here, where its emission is added; its majorant is
+            // scale x max() by construction. (Not tracked, e.g. its sigma_t
+            // not a nanovdbvolume: the medium warns that its emission is left out)
+            using Emissive = EmissiveMedium<Float, Spectrum>;
+            if (const Emissive *e = dynamic_cast<const Emissive *>(m)) {
+                e->set_emission_rendered();
+                tracked.push_back({ m, v, p.scale, p.scale * v->majorant_bound(),
+                                    v->stochastic_lookups(), e });
+                continue;
+            }
             // (the check evaluates a kernel: not while a frozen function records)
             if (!recording() && !majorant_is_scale_times_max(m, p.scale * volume->max())) {
                 Log(Debug, "volpathlocal: a medium's majorant is not scale x max(): "
@@ -839,7 +855,7 @@ private:
                 continue;
             }
             tracked.push_back({ m, v, p.scale, p.scale * v->majorant_bound(),
-                                v->stochastic_lookups() });
+                                v->stochastic_lookups(), nullptr });
         }
         Log(Debug, "volpathlocal: %zu of %zu media tracked through local majorants",
             tracked.size(), media.size());

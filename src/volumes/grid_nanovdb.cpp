@@ -8,6 +8,7 @@
 #include <nanovdb_drjit/sampler.h>
 #include <nanovdb_loader/load.h>
 #include <nanovdb_loader/majorants.h>
+#include <nanovdb_mitsuba/volume_source.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
 
@@ -250,7 +251,8 @@ constexpr const char *FILTER_NAMES[] = { "nearest", "trilinear", "stochastic_tri
 
 template <typename Float, typename Spectrum>
 class NanoVDBVolume final : public Volume<Float, Spectrum>,
-                            public LocalMajorants<Float, Spectrum> {
+                            public LocalMajorants<Float, Spectrum>,
+                            public nanovdb_mitsuba::VolumeSource {
 public:
     MI_IMPORT_BASE(Volume, update_bbox, m_to_local, m_bbox, m_channel_count)
     MI_IMPORT_TYPES()
@@ -630,6 +632,11 @@ public:
     // No MI_MASK_ARGUMENT here: on scalar variants it would make every call
     // active, and the walk is stepped with masks (a lane that met a null
     // collision stays in its segment).
+
+    std::string source_name() const override {
+        return "\"" + m_filename + "\" grid \"" + m_facts.name + "\"";
+    }
+    uint32_t grid_class_code() const override { return m_facts.grid_class; }
 
     ScalarFloat local_majorant_ratio() const override {
         node_majorants();
