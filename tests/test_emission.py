@@ -27,7 +27,7 @@ import pytest
 import drjit as dr
 import mitsuba as mi
 
-from conftest import SHARED_DATA, _setup_variant, need_shared_data
+from conftest import TEST_VARIANTS, _setup_variant, has_cuda, need_shared_data
 import nanovdb_mitsuba
 
 Z_MAX = 5.0
@@ -45,7 +45,10 @@ def T4():
     return mi.ScalarTransform4f()
 
 
-@pytest.fixture(params=["scalar_rgb", "llvm_ad_rgb", "scalar_spectral"])
+# The analytic tests' variants: two RGB and one spectral (NVDB_TEST_VARIANTS
+# replaces them, as for the other variant-parametrized tests)
+@pytest.fixture(params=TEST_VARIANTS or (["scalar_rgb", "llvm_ad_rgb", "scalar_spectral"] +
+                                         (["cuda_ad_rgb"] if has_cuda() else [])))
 def variants_emission(request):
     _setup_variant(request.param)
     return request.param
@@ -115,10 +118,12 @@ def check_bernoulli_pixels(img, spp, le, p, what):
     le = np.broadcast_to(np.asarray(le, np.float64), px.shape[1:])
     expect = le * p
     sd = np.abs(le) * np.sqrt(p * (1 - p))
-    per_pixel = Z_MAX * sd / np.sqrt(spp) + 1e-6 * np.abs(expect)
+    # (+1e-5 relative: float32 colour conversions, e.g. mono's luminance of
+    # an RGB colour, 1.5e-6 off the double one here)
+    per_pixel = Z_MAX * sd / np.sqrt(spp) + 1e-5 * np.abs(expect)
     bad = np.abs(px - expect) > per_pixel
     assert not bad.any(), (what, px[bad.any(axis=1)][:4], expect, per_pixel)
-    whole = Z_MAX * sd / np.sqrt(spp * len(px)) + 1e-6 * np.abs(expect)
+    whole = Z_MAX * sd / np.sqrt(spp * len(px)) + 1e-5 * np.abs(expect)
     assert np.all(np.abs(px.mean(axis=0) - expect) <= whole), (what, px.mean(axis=0), expect)
 
 

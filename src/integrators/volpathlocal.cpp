@@ -114,7 +114,14 @@ The estimators (for a tracked medium, with majorant :math:`\bar\mu(t)` =
   :math:`\mu_s / \mathrm{mean}(\mu_t)`, and null otherwise, weight
   :math:`\mu_n / \mathrm{mean}(\mu_n)` (1 for a grey extinction);
 - ratio tracking: the transmittance estimate is
-  :math:`\prod \mu_n / \bar\mu` over the tentative collisions.
+  :math:`\prod \mu_n / \bar\mu` over the tentative collisions;
+- emission (an ``emissiveheterogeneous`` medium, which Mitsuba's own
+  integrators render without it): at every tentative collision of delta
+  tracking, real or null, the path adds its throughput times the null
+  weights so far times :math:`\sigma_a L_e / \bar\mu`, whose mean is the
+  emission the ray collects (pbrt-v4's estimator; tracking.h). An emissive
+  medium is always tracked through the walk, whatever
+  ``max_majorant_ratio``.
 
 .. tabs::
     .. code-tab:: xml
