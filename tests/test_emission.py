@@ -372,7 +372,7 @@ def test06_scattering_local_against_global_majorants(variants_rgb):
     # light): the walk's local majorants against one majorant per node of
     # the whole grid (coarse_optical_depth 1e30: every node crossed whole),
     # 2 seeds each, z-test per channel over the image and over the floor.
-    spp = 64 if dr.is_jit_v(mi.Float) else 16
+    spp = 256 if dr.is_jit_v(mi.Float) else 32
     a = np.stack([render_np(mi.load_dict(fire_over_floor(spp)), seed=s) for s in (0, 1)])
     b = np.stack([render_np(mi.load_dict(fire_over_floor(spp, coarse_optical_depth=1e30)),
                             seed=s) for s in (2, 3)])
