@@ -8,6 +8,7 @@
 #include <nanovdb_drjit/sampler.h>
 #include <nanovdb_loader/load.h>
 #include <nanovdb_loader/majorants.h>
+#include <nanovdb_loader/vdb_import.h>
 #include <nanovdb_mitsuba/volume_source.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
@@ -347,7 +348,8 @@ public:
         std::optional<nanovdb_loader::IndexBox> box; // the volume's box, if not the active one
         if (!memory) {
             std::string selector(grid_object ? "" : props.get<std::string_view>("grid", ""));
-            summary = load_file(selector);
+            summary = nanovdb_loader::is_vdb_path(m_filename) ? load_vdb(selector)
+                                                               : load_file(selector);
         } else {
             nanovdb_loader::BuildOptions options;
             options.background = props.get<ScalarFloat>("background", 0.f);
@@ -566,6 +568,14 @@ public:
         put("majorant_bytes", m_trav.majorant_bytes);
         put("spectral_scale_bytes", m_trav.scale_bytes);
         put("wrap_clamp", m_clamp);
+        // A .vdb file: converted at load; the class the grid had in the file
+        // (grid_class is what it became: a level set becomes a fog volume)
+        put("vdb_imported", m_vdb.imported);
+        if (m_vdb.imported) {
+            put("vdb_source_class", m_vdb.source_class);
+            put("vdb_fogged", m_vdb.fogged);
+            put("vdb_convert_seconds", m_vdb.convert_seconds);
+        }
         m_trav.value_bytes = double(m_facts.value_bytes);
         put("value_bytes", m_trav.value_bytes);
         // An index grid's values (index i + 1 at i; index_grid.h gives the
@@ -590,7 +600,11 @@ public:
             << "  grid_type = " << nanovdb_loader::grid_type_name(m_facts.grid_type) << ","
             << std::endl
             << "  grid_class = " << nanovdb_loader::grid_class_name(m_facts.grid_class) << ","
-            << std::endl
+            << std::endl;
+        if (m_vdb.imported)
+            oss << "  converted = from .vdb at load (" << m_vdb.convert_seconds << " s)"
+                << (m_vdb.fogged ? ", a level set made a fog volume" : "") << "," << std::endl;
+        oss
             << "  channels = " << m_channel_count << "," << std::endl
             << "  filter_type = " << FILTER_NAMES[(size_t) m_filter] << "," << std::endl
             << "  wrap_mode = " << (m_clamp ? "clamp" : "tree") << "," << std::endl
@@ -824,6 +838,32 @@ private:
 
     /// The file's grid `selector` (or, where a grid X is asked for and the
     /// file holds "X[0:3]" and "X[3:6]", that pair: 6 channels)
+    /**
+     * A .vdb file's grid, converted in memory as vdb2nvdb converts it
+     * (nanovdb_loader/vdb_import.h): only that grid is read, and no file is
+     * written. What was done is kept for traverse() and to_string().
+     */
+    nanovdb_loader::GridSummary load_vdb(const std::string &selector) {
+        try {
+            nanovdb_loader::VdbGrid g = nanovdb_loader::import_vdb_grid(m_filename, selector);
+            m_vdb.imported = true;
+            m_vdb.source_class = g.source_class;
+            m_vdb.fogged = g.fogged;
+            m_vdb.read_seconds = g.read_seconds;
+            m_vdb.convert_seconds = g.convert_seconds;
+            m_grid_index = g.index;
+            Log(Debug, "nanovdbvolume: \"%s\": grid \"%s\" read in %.3f s, converted in %.3f s%s",
+                m_filename, g.name, g.read_seconds, g.convert_seconds,
+                g.fogged ? " (a level set, made a fog volume)" : "");
+            m_facts.name = g.name;
+            return load(nanovdb_loader::GridSource::memory(m_filename, g.name, g.data.get(),
+                                                           g.size),
+                        g.size, std::nullopt, m_sampler, m_facts, false);
+        } catch (const nanovdb_loader::Error &e) {
+            Throw("nanovdbvolume: %s", e.what());
+        }
+    }
+
     nanovdb_loader::GridSummary load_file(const std::string &selector) {
         namespace loader = nanovdb_loader;
         try {
@@ -1320,6 +1360,12 @@ private:
 
     // Host
     GridFacts m_facts, m_second_facts;
+    /// A .vdb file's grid, converted at load (load_vdb)
+    struct {
+        bool imported = false, fogged = false;
+        uint32_t source_class = 0; ///< OpenVDB's GridClass of the grid in the file
+        double read_seconds = 0, convert_seconds = 0;
+    } m_vdb;
     ScalarVector3i m_index_min_host;
     ScalarVector3i m_resolution_host;
     int32_t m_index_min_box[3] = {}, m_resolution_box[3] = {};

@@ -34,7 +34,14 @@ openvdb::GridPtrVec read_vdb(const std::string &path) {
         openvdb::GridPtrVecPtr grids = stream.getGrids();
         if (!grids)
             throw Error(dq(path) + ": cannot read as an OpenVDB file: no grids read");
+        // OpenVDB reads a grid cut off by the end of the file as short
+        // buffers without a word; the stream knows
+        if (!is)
+            throw Error(dq(path) + ": truncated or corrupt: its grids run past the end of "
+                        "the file");
         return *grids;
+    } catch (const Error &) {
+        throw;
     } catch (const openvdb::Exception &e) {
         throw Error(dq(path) + ": cannot read as an OpenVDB file: " + e.what());
     } catch (const std::exception &e) {

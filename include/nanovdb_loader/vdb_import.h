@@ -1,0 +1,45 @@
+// nanovdb_loader/vdb_import.h -- an OpenVDB .vdb file's grid as NanoVDB bytes,
+// in memory, for nanovdbvolume's `filename` (no .nvdb file is written)
+//
+// Only the grid asked for is read (its metadata first, to choose it, then
+// that grid alone) and converted with vdb2nvdb's rules (tools/vdb2nvdb/
+// prepare.cpp, to_nano.cpp): a float grid as float, a level set first made
+// a fog volume (openvdb::tools::sdfToFogVolume), a vec3s grid as Vec3f.
+// Other types (points, integers, doubles, ...) are refused. Built only with
+// OpenVDB (Debian's libopenvdb-dev); without it vdb_import_available() is
+// false and import_vdb_grid() throws a message that says how to get it.
+// Every failure throws nanovdb_loader::Error whose message starts with
+// "\"<path>\": ".
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include <nanovdb_loader/container.h>
+
+namespace nanovdb_loader {
+
+/// A grid of a .vdb file, converted
+struct VdbGrid {
+    std::shared_ptr<const uint8_t> data; ///< one NanoVDB grid buffer (what a .nvdb
+    size_t size = 0;                     ///< segment holds), and its bytes
+    std::string name;           ///< the grid's name
+    uint32_t index = 0;         ///< its position in the file
+    uint32_t source_class = 0;  ///< OpenVDB's GridClass (0 unknown, 1 level set, 2 fog, 3 staggered)
+    bool fogged = false;        ///< a level set made a fog volume
+    double read_seconds = 0, convert_seconds = 0;
+};
+
+/// Whether the plugin was built with OpenVDB (.vdb files can be read)
+bool vdb_import_available();
+
+/// Whether `path` names an OpenVDB file (its extension is .vdb, any case)
+bool is_vdb_path(const std::string &path);
+
+/// The grid `selector` of the .vdb file at `path`: a name, else a decimal
+/// index, or (empty) the first float or vec3s grid; converted.
+VdbGrid import_vdb_grid(const std::string &path, const std::string &selector);
+
+} // namespace nanovdb_loader
