@@ -176,6 +176,33 @@ def test02b_list_shows_world_bbox_transform_and_values(gen, tmp_path):
     assert world in nv.splitlines() and xf in nv.splitlines(), nv
 
 
+def list_roles(stdout):
+    """{grid name: its last --list column (what nanovdb-render makes of it)}"""
+    roles = {}
+    for line in stdout.splitlines():
+        m = re.match(r'^  \d+\s+"(.*)"\s+(.*)$', line)
+        if m:
+            cols = re.split(r"\s{2,}", m.group(2).strip())
+            roles[m.group(1)] = cols[5] if len(cols) > 5 else ""
+    return roles
+
+
+def test02c_list_marks_density_and_emission_grids(gen, tmp_path):
+    # The column nanovdb-render's rule fills (python/nanovdb_mitsuba/fire.py):
+    # density by name, else the first float grid; the first of emission,
+    # flame, temperature, heat as the emission, temperature/heat in kelvin
+    p = run("--list", gen("multi"))
+    assert "nanovdb-render" in p.stdout.splitlines()[1]
+    assert list_roles(p.stdout) == {"density": "density", "vel": "", "ls_sphere": "",
+                                    "flags": "", "temperature": "emission (temperature)"}
+    src = need_shared_data("usd_density_heat_fog.vdb") / "usd_density_heat_fog.vdb"
+    want = {"density": "density", "heat": "emission (temperature)"}
+    assert list_roles(run("--list", src).stdout) == want
+    # The conversion keeps both float grids, and the .nvdb lists the same
+    run(src, tmp_path / "h.nvdb")
+    assert list_roles(run("--list", tmp_path / "h.nvdb").stdout) == want
+
+
 # ---------------------------------------------------------------------------
 #  Conversion: grids, order, names, values
 # ---------------------------------------------------------------------------

@@ -14,6 +14,7 @@ progress bar; the image is written as PNG (sRGB, 8 bit) and EXR (linear).
 installing: PYTHONPATH=python python3 -m nanovdb_mitsuba.render ...
 """
 import argparse
+import functools
 import os
 import re
 import subprocess
@@ -25,7 +26,7 @@ if __package__ in (None, ""):  # run as a file: python3 python/nanovdb_mitsuba/r
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     __package__ = "nanovdb_mitsuba"
 
-from nanovdb_mitsuba import setup, vdb2nvdb  # noqa: E402
+from nanovdb_mitsuba import fire, sequence, setup, vdb2nvdb  # noqa: E402
 from nanovdb_mitsuba.facts import volume_facts  # noqa: E402
 from nanovdb_mitsuba.scene import framed_scene  # noqa: E402
 
@@ -42,12 +43,13 @@ def progress(done, total, started, out=sys.stderr):
         out.write("\n")
 
 
-def convert(path, grid, tmpdir):
-    """A .vdb through vdb2nvdb (only the chosen grid, or all of them)"""
+def convert(path, grids, tmpdir):
+    """A .vdb through vdb2nvdb: only the grids named in `grids`, or all of
+    them when it is empty"""
     out = os.path.join(tmpdir, os.path.splitext(os.path.basename(path))[0] + ".nvdb")
     cmd = [vdb2nvdb(), path, out, "--verify", "0"]
-    if grid:
-        cmd += ["--grid", grid]
+    for g in grids:
+        cmd += ["--grid", g]
     r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if r.returncode != 0:
         # vdb2nvdb's last line is its error; the notes before it go first
@@ -58,16 +60,28 @@ def convert(path, grid, tmpdir):
     return out
 
 
-def grid_names(path):
-    """The names of a .nvdb or .vdb file's grids, in file order (vdb2nvdb --list)"""
+@functools.lru_cache(maxsize=8)
+def _grid_rows(path, _mtime_ns, _size):
     r = subprocess.run([vdb2nvdb(), "--list", path], stdout=subprocess.PIPE,
                        stderr=subprocess.STDOUT, text=True)
-    names = []
+    rows = []
     for line in r.stdout.splitlines():
-        m = re.match(r'^\s+(\d+)\s+"(.*)"\s', line)
-        if m and int(m.group(1)) == len(names):
-            names.append(m.group(2))
-    return names
+        m = re.match(r'^\s+(\d+)\s+"(.*)"\s+(\S+)', line)
+        if m and int(m.group(1)) == len(rows):
+            rows.append((m.group(2), m.group(3)))
+    return tuple(rows)
+
+
+def grid_rows(path):
+    """[(name, type)] of a .nvdb or .vdb file's grids, in file order, as
+    vdb2nvdb --list shows them (type "float", "vec3s", ...)"""
+    st = os.stat(path)
+    return list(_grid_rows(path, st.st_mtime_ns, st.st_size))
+
+
+def grid_names(path):
+    """The names of a .nvdb or .vdb file's grids, in file order (vdb2nvdb --list)"""
+    return [name for name, _ in grid_rows(path)]
 
 
 def volume_properties(volume, path):
@@ -82,18 +96,48 @@ def volume_properties(volume, path):
 
 def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
                 integrator="volpathlocal", scale=None, filter_type="trilinear", passes=None,
-                quiet=False):
+                quiet=False, emission_grid=None, emission_mode=None, temperature_scale=None,
+                temperature_offset=None, emission_scale=None):
     """Renders `path` (.vdb or .nvdb); writes `out` (.png; an .exr beside it).
-    Returns (image as numpy array, info)."""
+    emission_grid: None finds one by name (fire.py), "none" renders none, a
+    name that grid; the other emission_* / temperature_* None: fire.py's
+    defaults. Returns (image as numpy array, info)."""
     import numpy as np
     import mitsuba as mi
     import drjit as dr
     mi.set_variant(variant)
     setup(mi)
     with tempfile.TemporaryDirectory() as tmp:
-        nvdb = convert(path, grid, tmp) if path.lower().endswith(".vdb") else path
+        # The density: --grid, else a grid named "density", else the
+        # first float grid (nanovdbvolume's choice without a name)
+        rows = grid_rows(path)
+        density = fire.default_density(rows)
+        if grid:
+            density = rows[int(grid)][0] if grid.isdigit() and int(grid) < len(rows) else grid
+        by_name = grid or (density if density.lower() == "density" else "")
+        found = fire.emission_candidates([n for n, _ in rows], exclude=density)
+        if emission_grid is not None and emission_grid.lower() == "none":
+            chosen, mode = None, None
+        else:
+            chosen, mode = fire.choose(path, rows, density, emission_grid, emission_mode)
+        if chosen and integrator != "volpathlocal":
+            raise SystemExit(f"nanovdb-render: {path}: grid \"{chosen}\" emits light, which "
+                             f"only the volpathlocal integrator renders, not {integrator}; "
+                             "leave --integrator out, or add --no-emission")
+        if path.lower().endswith(".vdb"):
+            # Only the grids rendered, into a temporary .nvdb: the density
+            # (its first float grid), and the emission's beside it
+            if chosen:
+                grids = [density] if chosen == density else [density, chosen]
+                by_name = density
+            else:
+                grids, by_name = ([by_name] if by_name else []), ""
+            nvdb = convert(path, grids, tmp)
+        else:
+            nvdb = path
+        emission_file = nvdb
         kw = dict(scale=scale, res=res, spp=spp, integrator=integrator, filter_type=filter_type)
-        scene_dict, info = framed_scene(mi, nvdb, grid=grid if nvdb == path else "", **kw)
+        scene_dict, info = framed_scene(mi, nvdb, grid=by_name, **kw)
         props = volume_properties(info["volume"], nvdb)
         if nvdb == path and props.get("grid_class") == "level set":
             # A .nvdb level set: signed distances, not a density. Made a fog
@@ -103,7 +147,7 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
                       "fog volume (vdb2nvdb, into a temporary file)")
             del scene_dict, info
             level_set = props
-            nvdb = convert(path, props.get("grid"), tmp)
+            nvdb = convert(path, [props["grid"]] if props.get("grid") else [], tmp)
             scene_dict, info = framed_scene(mi, nvdb, **kw)
             props = volume_properties(info["volume"], nvdb)
             if props["max"] == 0 and level_set["max"] != 0:
@@ -131,6 +175,21 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
             if not quiet:
                 print(f"{path}: grid \"{props.get('grid')}\" is a Vec3f grid: rendered as a "
                       "colour extinction (one density per RGB channel)")
+        info["emission"] = None
+        if chosen or found:
+            # A fire's smoke: the same albedo with its emission or without
+            # it (--no-emission), so that the two differ only by the glow
+            interior = scene_dict["box"]["interior"]
+            interior["albedo"] = {"type": "rgb", "value": [fire.FIRE_ALBEDO] * 3}
+        if found and not quiet and not chosen:
+            listed = ", ".join(f'"{n}"' for n in found)
+            print(f"{path}: emission grids {listed}: not rendered (--no-emission); albedo "
+                  f"{fire.FIRE_ALBEDO:g}")
+        if chosen:
+            info["emission"] = add_emission(
+                mi, scene_dict, path, emission_file, chosen, mode, found, filter_type,
+                dict(temperature_scale=temperature_scale, temperature_offset=temperature_offset,
+                     emission_scale=emission_scale), quiet)
         if not quiet:
             bmin, bmax = info["bbox_min"], info["bbox_max"]
             print(f"{path}: world bbox [{', '.join(f'{v:g}' for v in bmin)}] .. "
@@ -157,11 +216,37 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
         bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True).write(out)
         info["seconds"] = time.perf_counter() - started
         info["grid_class"] = props.get("grid_class")
+        info["grid"] = props.get("grid")
         info.pop("volume", None)
         if not quiet:
             print(f"wrote {out} and {exr} ({res}x{res}, {spp} spp, {variant}, {integrator}) "
                   f"in {info['seconds']:.1f} s")
         return image, info
+
+
+def add_emission(mi, scene_dict, path, nvdb, name, mode, found, filter_type, overrides, quiet):
+    """Makes scene_dict's medium glow with grid `name` of `nvdb` (fire.py
+    picks the scales from the loaded grid's max()); says what it chose.
+    Returns what it rendered (a dict), or None where the grid cannot emit
+    (empty, or never hot enough): then the scene stays as it was."""
+    volume = mi.load_dict({"type": "nanovdbvolume", "filename": str(nvdb), "grid": name,
+                           "use_grid_transform": True, "filter_type": filter_type})
+    facts = volume_facts(volume)
+    params, summary, why_not = fire.emission_params(mi, volume, mode, facts["max"], **overrides)
+    listed = ", ".join(f'"{n}"' for n in found) or "none by name"
+    if params is None:
+        if facts["index_dims"] == [1, 1, 1] and facts["max"] == 0:
+            why_not = "it holds no active voxels"
+        if not quiet:
+            print(f"{path}: emission grid \"{name}\" is empty ({why_not}): rendering without "
+                  "emission")
+        return None
+    scene_dict["box"]["interior"] = fire.emissive_interior(scene_dict["box"]["interior"], params)
+    if not quiet:
+        print(f"{path}: emission grids: {listed}; \"{name}\" glows: {summary}; albedo "
+              f"{fire.FIRE_ALBEDO:g}")
+    return dict(grid=name, mode=mode, max=facts["max"],
+                **{k: v for k, v in params.items() if isinstance(v, float)})
 
 
 def main(argv=None):
@@ -177,13 +262,55 @@ def main(argv=None):
     ap.add_argument("--scale", type=float, default=None,
                     help="density scale (default: a mean optical depth of about 8)")
     ap.add_argument("--filter", default="trilinear", choices=["trilinear", "nearest"])
+    fire_args = ap.add_argument_group(
+        "fire", "A grid named emission, flame, temperature or heat (case-insensitive; the "
+        "first of these present, in this order) beside the density makes the medium glow "
+        "(emissiveheterogeneous, rendered by volpathlocal; the density's albedo becomes "
+        f"{fire.FIRE_ALBEDO:g}). temperature/heat: blackbody emission, the grid's max mapped "
+        f"to {fire.HOTTEST_KELVIN:.0f} K; emission/flame: radiance in a "
+        f"{fire.FIRE_KELVIN:.0f} K blackbody's colour. Either way the brightest value has "
+        f"luminance {fire.BRIGHTNESS:g} (twice the brightest sunlit smoke).")
+    fire_args.add_argument("--emission-grid", metavar="NAME", default=None,
+                           help="the emission grid (default: found by name), or none")
+    fire_args.add_argument("--no-emission", action="store_true",
+                           help="render the density only (same as --emission-grid none)")
+    fire_args.add_argument("--emission-mode", choices=list(fire.MODES), default=None,
+                           help="default: temperature for temperature/heat, else radiance")
+    fire_args.add_argument("--temperature-scale", type=float, default=None, metavar="S",
+                           help="kelvin = (value - offset) x S (default: the grid's max -> "
+                                f"{fire.HOTTEST_KELVIN:.0f} K)")
+    fire_args.add_argument("--temperature-offset", type=float, default=None, metavar="O",
+                           help="see --temperature-scale (default 0)")
+    fire_args.add_argument("--emission-scale", type=float, default=None, metavar="E",
+                           help="multiplies the emitted radiance (default: the brightest "
+                                f"value's luminance -> {fire.BRIGHTNESS:g})")
+    sequence.add_arguments(ap)
     a = ap.parse_args(argv)
+    if a.no_emission:
+        if a.emission_grid not in (None, "none"):
+            ap.error("--no-emission and --emission-grid contradict each other")
+        a.emission_grid = "none"
+    emission_options = [o for o, v in (("--emission-mode", a.emission_mode),
+                                       ("--temperature-scale", a.temperature_scale),
+                                       ("--temperature-offset", a.temperature_offset),
+                                       ("--emission-scale", a.emission_scale)) if v is not None]
+    if a.emission_grid == "none" and emission_options:
+        ap.error(f"{emission_options[0]} needs an emission grid, not --no-emission")
+    if a.emission_mode == "radiance" and (a.temperature_scale is not None or
+                                          a.temperature_offset is not None):
+        ap.error("--temperature-scale and --temperature-offset apply to --emission-mode "
+                 "temperature")
+    if sequence.handles(a, ap):  # 'smoke.####.vdb', 'smoke.%04d.vdb' or a folder (sequence.py)
+        return
     if not os.path.exists(a.input):
         raise SystemExit(f"nanovdb-render: \"{a.input}\": no such file")
     out = a.output or os.path.splitext(os.path.basename(a.input))[0] + ".png"
     try:
         render_file(a.input, out, grid=a.grid, spp=a.spp, res=a.res, variant=a.variant,
-                    integrator=a.integrator, scale=a.scale, filter_type=a.filter)
+                    integrator=a.integrator, scale=a.scale, filter_type=a.filter,
+                    emission_grid=a.emission_grid, emission_mode=a.emission_mode,
+                    temperature_scale=a.temperature_scale,
+                    temperature_offset=a.temperature_offset, emission_scale=a.emission_scale)
     except RuntimeError as e:
         # Mitsuba's messages already name the file and the problem; drop
         # its source location prefix ("[parser.cpp:1718] ...")

@@ -86,20 +86,39 @@ def enclosing_cube(mi, volume, margin=1e-4):
     return mi.ScalarTransform4f().translate(centre).scale(half)
 
 
+class _Box:
+    """A world box as lists (what camera() reads of a BoundingBox3f)"""
+    def __init__(self, lo, hi):
+        self.min, self.max = [float(x) for x in lo], [float(x) for x in hi]
+
+
 def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
                  integrator="volpathlocal", albedo=0.9, filter_type="trilinear",
-                 invalid_values="error"):
+                 invalid_values="error", sequence=None):
     """(scene dict, info) for `filename` (.nvdb). `scale` None: default_scale().
-    info holds the volume's world bbox, the camera and the scale used."""
-    vdict = {"type": "nanovdbvolume", "filename": str(filename), "use_grid_transform": True,
-             "filter_type": filter_type, "invalid_values": invalid_values}
-    if grid:
-        vdict["grid"] = grid
-    volume = mi.load_dict(vdict)
-    bb = volume.bbox()
-    if scale is None:
-        scale = default_scale(volume)
-    cam = camera(bb)
+    info holds the volume's world bbox, the camera and the scale used.
+    sequence: a sequence summary (the plan of sequence.py: "bbox_min",
+    "bbox_max", the union of every frame's world box, and "scale"): the
+    camera frames that union and `scale` None takes its scale, so that every
+    frame of an animation gets the same camera and scale. With a sequence,
+    filename None gives the scene of an empty frame (camera and lights, no box)."""
+    volume = None
+    if filename is not None or sequence is None:
+        vdict = {"type": "nanovdbvolume", "filename": str(filename), "use_grid_transform": True,
+                 "filter_type": filter_type, "invalid_values": invalid_values}
+        if grid:
+            vdict["grid"] = grid
+        volume = mi.load_dict(vdict)
+    if sequence is not None:
+        bb = _Box(sequence["bbox_min"], sequence["bbox_max"]) if volume is None else volume.bbox()
+        if scale is None:
+            scale = float(sequence["scale"])
+        cam = camera(_Box(sequence["bbox_min"], sequence["bbox_max"]))
+    else:
+        bb = volume.bbox()
+        if scale is None:
+            scale = default_scale(volume)
+        cam = camera(bb)
     T = mi.ScalarTransform4f
     scene = {
         "type": "scene",
@@ -115,14 +134,15 @@ def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.15, 0.18, 0.25]}},
         "sun": {"type": "directional", "direction": [-1, -1, -0.5],
                 "irradiance": {"type": "rgb", "value": [6, 5.7, 5.1]}},
-        "box": {
+    }
+    if volume is not None:
+        scene["box"] = {
             "type": "cube",  # [-1, 1]^3, fitted to the volume's world box
             "to_world": enclosing_cube(mi, volume),
             "bsdf": {"type": "null"},
             "interior": {"type": "heterogeneous", "sigma_t": volume,
                          "albedo": {"type": "rgb", "value": [albedo] * 3}, "scale": scale},
-        },
-    }
+        }
     info = dict(bbox_min=[float(x) for x in bb.min], bbox_max=[float(x) for x in bb.max],
                 camera=cam, scale=scale, volume=volume)
     return scene, info

@@ -69,7 +69,7 @@ FloatGrid::Ptr sphere_ls(float radius = 1.f, float voxel = 0.02f) {
 /// edges fray and whose interior gets holes from fbm noise; density in
 /// (0, 1], 0 (inactive) outside. Non-uniform voxel size and a translation, so
 /// the grid transform matters. "density", fog volume.
-FloatGrid::Ptr cloud(int h) {
+FloatGrid::Ptr cloud(int h, double drift = 0.0) {
     auto grid = FloatGrid::create(0.f);
     grid->tree().denseFill(CoordBBox(Coord(-h), Coord(h - 1)), 1.f, true);
     static const Blob blobs[] = { { 0.0, -0.1, 0.0, 0.55 }, { 0.35, 0.2, -0.15, 0.4 },
@@ -80,13 +80,35 @@ FloatGrid::Ptr cloud(int h) {
         const double shape = blob_shape(x, y, z, blobs);
         if (shape < -0.7)
             return 0.f;
-        const double n = quintic_fbm(2.5 * x, 2.5 * y, 2.5 * z, kSeed + 1);
+        const double n = quintic_fbm(2.5 * x + drift, 2.5 * y, 2.5 * z, kSeed + 1);
         return float(std::clamp(2.2 * (shape + 1.4 * (n - 0.5)), 0.0, 1.0));
     });
     openvdb::tools::pruneInactive(grid->tree());
     auto xform = openvdb::math::Transform::createLinearTransform(
         openvdb::math::Mat4d(0.01, 0., 0., 0., 0., 0.01, 0., 0., 0., 0., 0.0125, 0., 0.2, 1.0, -0.3, 1.));
     grid->setTransform(xform);
+    grid->setName("density");
+    grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+    return grid;
+}
+
+/// Frame `frame` of a short animation: the noisy cloud drifting and growing.
+/// Its index box is [-h, h)^3 with h = 12 + 2 frame (24^3 voxels at frame
+/// 0, 4 more a side each frame), voxel size 0.02 (so the world box grows by
+/// 0.08 a frame), translated by (0.05, 0.02, -0.03) a frame, its noise
+/// sliding by 0.15 a frame (the shape changes, not only its size); every
+/// frame has its own box and transform. "density", fog volume.
+FloatGrid::Ptr drifting_cloud(int frame) {
+    auto grid = cloud(12 + 2 * frame, 0.15 * frame);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(openvdb::math::Mat4d(
+        0.02, 0., 0., 0., 0., 0.02, 0., 0., 0., 0., 0.02, 0., 0.05 * frame, 0.02 * frame,
+        -0.03 * frame, 1.)));
+    return grid;
+}
+
+/// A float grid "density" (fog volume) with no active voxels: an empty frame
+FloatGrid::Ptr empty_density() {
+    auto grid = FloatGrid::create(0.f);
     grid->setName("density");
     grid->setGridClass(openvdb::GRID_FOG_VOLUME);
     return grid;
@@ -208,6 +230,10 @@ std::vector<std::pair<std::string, std::string>> generate_cases() {
         { "cloud_albedo", "the cloud with a second grid, \"albedo\" (vec3s): blue at the "
                           "bottom, warm white at the top" },
         { "cloudfield_<N>", "a sparse field of 24 cloud puffs in an N^3 index box (1-2 % occupied)" },
+        { "drifting_cloud_<F>", "frame F (0..1000) of a cloud that drifts and grows: index box "
+                                "(24 + 4F)^3, voxel size 0.02, translated by F x (0.05, 0.02, "
+                                "-0.03)" },
+        { "empty", "a float grid \"density\" (fog) with no active voxels (an empty frame)" },
         { "multi", "five grids in one file: density (fog), vel (vec3s), ls_sphere (level set, "
                    "background 0.15), flags (int32), temperature (float, class unknown)" },
     };
@@ -233,6 +259,14 @@ openvdb::GridPtrVec make_case(const std::string &name) {
         return cloud_albedo(80);
     if (name == "multi")
         return multi();
+    if (name == "empty")
+        return { empty_density() };
+    const std::string frame = "drifting_cloud_";
+    if (name.rfind(frame, 0) == 0 && name.size() > frame.size() && name.size() <= frame.size() + 4 &&
+        std::all_of(name.begin() + frame.size(), name.end(),
+                    [](char c) { return c >= '0' && c <= '9'; }) &&
+        std::atoi(name.c_str() + frame.size()) <= 1000)
+        return { drifting_cloud(std::atoi(name.c_str() + frame.size())) };
     std::string list;
     for (const auto &c : generate_cases())
         list += (list.empty() ? "" : ", ") + c.first;

@@ -3,6 +3,7 @@
 #include "describe.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cstdio>
 
 #include "error.h"
@@ -25,7 +26,46 @@ std::string fmt_world_box(const openvdb::math::BBox<openvdb::Vec3d> &b) {
     return s;
 }
 
+std::string lower(std::string s) {
+    for (char &c : s)
+        c = char(std::tolower((unsigned char) c));
+    return s;
+}
+
 } // namespace
+
+std::vector<std::string>
+render_roles(const std::vector<std::pair<std::string, std::string>> &grids) {
+    // As python/nanovdb_mitsuba/fire.py (default_density, emission_candidates,
+    // default_mode): keep the two in step
+    static const char *kEmission[] = {"emission", "flame", "temperature", "heat"};
+    std::vector<std::string> roles(grids.size());
+    size_t density = grids.size();
+    for (size_t i = 0; i < grids.size() && density == grids.size(); ++i)
+        if (grids[i].second == "float" && lower(grids[i].first) == "density")
+            density = i;
+    for (size_t i = 0; i < grids.size() && density == grids.size(); ++i)
+        if (grids[i].second == "float")
+            density = i;
+    if (density < grids.size())
+        roles[density] = "density";
+    bool chosen = false;
+    for (const char *name : kEmission)
+        for (size_t i = 0; i < grids.size(); ++i) {
+            if (i == density || lower(grids[i].first) != name)
+                continue;
+            if (chosen) {
+                roles[i] = "emission-like, unused";
+                continue;
+            }
+            const std::string n(name);
+            const bool temperature =
+                (n == "temperature" || n == "heat") && grids[i].second == "float";
+            roles[i] = temperature ? "emission (temperature)" : "emission (radiance)";
+            chosen = true;
+        }
+    return roles;
+}
 
 std::string grid_details(const openvdb::GridBase &g, const CoordBBox &box) {
     std::string out;
@@ -90,8 +130,13 @@ std::string grid_details(const openvdb::GridBase &g, const CoordBBox &box) {
 int list_file(const std::string &in) {
     openvdb::GridPtrVec grids = read_input(in);
     std::printf("%s: %zu grid%s\n", in.c_str(), grids.size(), grids.size() == 1 ? "" : "s");
-    std::printf("  %-3s %-20s %-12s %-11s %15s  %-44s %s\n", "#", "name", "type", "class",
-                "active voxels", "active index bbox [min, max]", "voxel size");
+    std::printf("  %-3s %-20s %-12s %-11s %15s  %-44s %-30s  %s\n", "#", "name", "type",
+                "class", "active voxels", "active index bbox [min, max]", "voxel size",
+                "nanovdb-render");
+    std::vector<std::pair<std::string, std::string>> names;
+    for (const auto &g : grids)
+        names.emplace_back(g->getName(), g->valueType());
+    const std::vector<std::string> roles = render_roles(names);
     for (size_t i = 0; i < grids.size(); ++i) {
         const auto &g = *grids[i];
         CoordBBox box = g.evalActiveVoxelBoundingBox();
@@ -103,9 +148,15 @@ int list_file(const std::string &in) {
             std::snprintf(vsz, sizeof(vsz), "%g", vs[0]);
         else
             std::snprintf(vsz, sizeof(vsz), "%g x %g x %g", vs[0], vs[1], vs[2]);
-        std::printf("  %-3zu %-20s %-12s %-11s %15s  %-44s %s\n", i, dq(g.getName()).c_str(),
-                    g.valueType().c_str(), class_name(g.getGridClass()).c_str(),
-                    fmt_count(g.activeVoxelCount()).c_str(), bbox.c_str(), vsz);
+        char row[512];
+        std::snprintf(row, sizeof(row), "  %-3zu %-20s %-12s %-11s %15s  %-44s %-30s  %s", i,
+                      dq(g.getName()).c_str(), g.valueType().c_str(),
+                      class_name(g.getGridClass()).c_str(),
+                      fmt_count(g.activeVoxelCount()).c_str(), bbox.c_str(), vsz,
+                      roles[i].c_str());
+        std::string line(row);
+        line.erase(line.find_last_not_of(' ') + 1);
+        std::printf("%s\n", line.c_str());
         std::printf("%s", grid_details(g, box).c_str());
     }
     return ExitOk;
