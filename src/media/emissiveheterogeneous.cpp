@@ -141,6 +141,7 @@ public:
         m_scale = props.get<ScalarFloat>("scale", 1.f);
         m_has_spectral_extinction = props.get<bool>("has_spectral_extinction", true);
         m_max_density = dr::opaque<Float>(m_scale * m_sigmat->max());
+        update_bbox();
 
         // The emission: one of two modes
         const bool radiance = props.has_property("emission"),
@@ -209,6 +210,7 @@ public:
 
     void parameters_changed(const std::vector<std::string> & /*keys*/ = {}) override {
         m_max_density = dr::opaque<Float>(m_scale * m_sigmat->max());
+        update_bbox();
     }
 
     UnpolarizedSpectrum get_majorant(const MediumInteraction3f & /* mi */,
@@ -236,7 +238,7 @@ public:
     }
 
     std::tuple<Mask, Float, Float> intersect_aabb(const Ray3f &ray) const override {
-        return m_sigmat->bbox().ray_intersect(ray);
+        return m_bbox.ray_intersect(ray);
     }
 
     // ------------------------------------------------------------------
@@ -294,6 +296,15 @@ public:
     MI_DECLARE_CLASS(EmissiveHeterogeneousMedium)
 
 private:
+    /// The sigma_t volume's box, opaque: the frames of an animation (each its
+    /// own box) then share one kernel, where heterogeneous's box, a literal,
+    /// compiles one per frame
+    void update_bbox() {
+        ScalarBoundingBox3f b = m_sigmat->bbox();
+        m_bbox = BoundingBox3f(Point3f(b.min), Point3f(b.max));
+        dr::make_opaque(m_bbox.min, m_bbox.max);
+    }
+
     /// Where a texture is looked up (colours vary only with the wavelength)
     static SurfaceInteraction3f texture_point(const MediumInteraction3f &mi) {
         SurfaceInteraction3f si = dr::zeros<SurfaceInteraction3f>();
@@ -335,6 +346,7 @@ private:
     ref<Volume> m_sigmat, m_albedo;
     ScalarFloat m_scale;
     Float m_max_density;
+    BoundingBox3f m_bbox;
 
     ref<Volume> m_emission, m_temperature;
     ref<Texture> m_color, m_d65;
@@ -343,8 +355,8 @@ private:
 
     mutable std::atomic<bool> m_emission_rendered{ false }, m_warned{ false };
 
-    MI_TRAVERSE_CB(Base, m_sigmat, m_albedo, m_max_density, m_emission, m_temperature, m_color,
-                   m_d65)
+    MI_TRAVERSE_CB(Base, m_sigmat, m_albedo, m_max_density, m_bbox, m_emission, m_temperature,
+                   m_color, m_d65)
 };
 
 MI_EXPORT_PLUGIN(EmissiveHeterogeneousMedium)
