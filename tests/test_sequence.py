@@ -5,7 +5,9 @@ drifting_cloud_<F>`: every frame its own box and transform), frame 4 empty
 the union of the frames' boxes, one density scale, frames written one by
 one and skipped on a re-run, --frames and --shard partitioning the frames,
 shards given one plan building byte-identical scenes, and the empty and
-missing frames reported in one line each without stopping the run."""
+missing frames reported in one line each without stopping the run. Then
+fire (test08-11): one emission mapping in the plan, shards agreeing on the
+emissive scene, frames without the emission grid rendered without it."""
 import json
 import os
 import re
@@ -212,3 +214,136 @@ def test07_command_line_errors(frames_dir, tmp_path):
     assert p.returncode != 0 and "--shard" in p.stderr
     p = command(tmp_path / "none.####.vdb", cwd=tmp_path)
     assert p.returncode != 0 and "no files match" in p.stderr
+
+
+# Fire: a generated sequence with emission. The generator has no fire case
+# whose glow overlaps its smoke ("multi"'s temperature lies outside its
+# density's box), so frames 1-3 are the drifting cloud read as its own
+# temperature (--emission-grid density --emission-mode temperature: plan
+# "a") and frame 4 is "multi"; by name (plan "b") only frame 4 holds a
+# "temperature", so frames 1-3 render without emission.
+
+@pytest.fixture(scope="module")
+def fire_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fire")
+    exe = str(BUILD / "bin" / "vdb2nvdb")
+    for f in (1, 2, 3, 4):
+        case = "multi" if f == 4 else f"drifting_cloud_{f}"
+        subprocess.run([exe, "generate", case, str(d / f"fire.{f:04d}.vdb")], check=True,
+                       capture_output=True)
+    runs = {}
+    for name, opts in (("a", ["--emission-grid", "density", "--emission-mode", "temperature"]),
+                       ("b", [])):
+        p = command(d / "fire.####.vdb", "--plan", f"{name}.json", *opts, cwd=d)
+        assert p.returncode == 0, p.stderr
+        runs[name] = (json.loads((d / f"{name}.json").read_text()), p.stdout)
+    return d, runs
+
+
+def exr_mean(path):
+    import mitsuba as mi
+    import numpy as np
+    mi.set_variant("llvm_ad_rgb")
+    return float(np.array(mi.Bitmap(str(path))).mean())
+
+
+def test08_fire_plan_holds_one_mapping(fire_dir):
+    import mitsuba as mi
+    from nanovdb_mitsuba import fire
+    mi.set_variant("llvm_ad_rgb")
+    d, runs = fire_dir
+    for name, grid, with_grid in (("a", "density", [1, 2, 3, 4]), ("b", "temperature", [4])):
+        plan, out = runs[name]
+        em = plan["emission"]
+        assert em["grid"] == grid and em["mode"] == "temperature"
+        assert plan["albedo"] == fire.FIRE_ALBEDO
+        frames = {e["frame"]: e for e in plan["frames"]}
+        assert [f for f, e in frames.items() if "emission_max" in e] == with_grid
+        # One mapping: the largest max over the frames -> HOTTEST_KELVIN
+        top = max(frames[f]["emission_max"] for f in with_grid)
+        assert em["max"] == top and frames[em["max_frame"]]["emission_max"] == top
+        assert em["temperature_scale"] == pytest.approx(fire.HOTTEST_KELVIN / top, rel=1e-12)
+        want, _, _ = fire.emission_params(mi, None, "temperature", top)
+        assert {k: em[k] for k in want} == want
+        # printed once
+        assert len([ln for ln in out.splitlines() if "one mapping for all frames" in ln]) == 1
+    assert all(runs["b"][0]["frames"][f - 1]["emission_why"] == 'no grid "temperature"'
+               for f in (1, 2, 3))
+    # The rule on frames of different maxima: the hottest frame decides
+    plan = {}
+    em = seq.emission_mapping(
+        mi, plan, "heat", "temperature",
+        [{"frame": 1, "emission_max": 0.5}, {"frame": 2, "emission_max": 2.0}, {"frame": 3}],
+        {1: [("heat", "float")]}, {})
+    assert em["max_frame"] == 2 and em["temperature_scale"] == fire.HOTTEST_KELVIN / 2.0
+    em = seq.emission_mapping(mi, plan, "flame", "radiance",
+                              [{"frame": 1, "emission_max": 0.5},
+                               {"frame": 2, "emission_max": 4.0}],
+                              {1: [("flame", "float")]}, {})
+    assert em["emission_scale"] == fire.FLAME_BRIGHTNESS / 4.0 and "temperature_scale" not in em
+
+
+def test09_fire_shards_agree_and_glow(fire_dir, tmp_path):
+    """Two shards with plan "a" build byte-identical emissive scenes for
+    frame 2; the frame is brighter than with --no-emission"""
+    d, runs = fire_dir
+    plan = runs["a"][0]
+    for i, opts in enumerate((["--frames", "1-3", "--shard", "1/2"], ["--frames", "2"],
+                              ["--frames", "2", "--no-emission"])):
+        p = command(d / "fire.####.vdb", "-o", tmp_path / f"o{i}" / "f.png", "--plan", d / "a.json",
+                    "--scene-json", tmp_path / f"s{i}", *opts, cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        assert wrote(p.stdout) == [2] and "scanning" not in p.stdout
+        assert "without emission" not in p.stdout
+    a, b, c = [(tmp_path / f"s{i}" / "f.0002.scene.json").read_bytes() for i in range(3)]
+    assert a == b
+    medium = json.loads(a)["box"]["interior"]
+    assert medium["type"] == "emissiveheterogeneous"
+    assert medium["temperature"]["grid"] == "density"
+    for k in ("temperature_scale", "temperature_offset", "temperature_cutoff", "emission_scale"):
+        assert medium[k] == plan["emission"][k]
+    plain = json.loads(c)["box"]["interior"]
+    assert plain["type"] == "heterogeneous" and plain["albedo"] == medium["albedo"]
+    glow, smoke = (exr_mean(tmp_path / f"o{i}" / "f.0002.exr") for i in (1, 2))
+    assert glow > 1.05 * smoke, (glow, smoke)
+
+
+def test10_fire_frames_without_the_grid(fire_dir, tmp_path):
+    """Plan "b": frame 1 has no "temperature": one line, no emission, the
+    run goes on; frame 4's scene glows (framed_scene with the plan, the
+    Python route); an empty emission grid renders without emission too"""
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    d, runs = fire_dir
+    plan = runs["b"][0]
+    p = command(d / "fire.####.vdb", "-o", tmp_path / "o" / "f.png", "--plan", d / "b.json",
+                "--frames", "1", "--scene-json", tmp_path / "s", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert wrote(p.stdout) == [1]
+    assert len([ln for ln in p.stdout.splitlines() if ln.startswith("frame 1 ")
+                and 'without emission: no grid "temperature"' in ln]) == 1
+    medium = json.loads((tmp_path / "s" / "f.0001.scene.json").read_text())["box"]["interior"]
+    assert medium["type"] == "heterogeneous" and medium["albedo"]["value"][0] == plan["albedo"]
+    nvdb = seq.convert(str(d / "fire.0004.vdb"), ["density", "temperature"], str(tmp_path))
+    scene, info = framed_scene(mi, nvdb, sequence=plan, res=RES)
+    assert scene["box"]["interior"]["type"] == "emissiveheterogeneous"
+    assert info["emission"]["temperature_scale"] == plan["emission"]["temperature_scale"]
+    # The frame's hottest value below the cutoff with the plan's scale: none
+    cold = dict(plan, emission=dict(plan["emission"], temperature_scale=0.2))
+    scene, info = framed_scene(mi, nvdb, sequence=cold, res=RES)
+    assert info["emission"] is None and "cutoff" in info["emission_why_not"]
+    assert scene["box"]["interior"]["type"] == "heterogeneous"
+    del scene, info
+
+
+def test11_fire_command_line_errors(fire_dir, tmp_path):
+    d, runs = fire_dir
+    p = command(d / "fire.####.vdb", "--plan", d / "a.json", "--emission-scale", "2",
+                cwd=tmp_path)
+    assert p.returncode != 0 and "--emission-scale 2.0 but the plan" in p.stderr
+    p = command(d / "fire.####.vdb", "--plan", d / "a.json", "--integrator", "volpath",
+                cwd=tmp_path)
+    assert p.returncode != 0 and "only the volpathlocal integrator" in p.stderr
+    p = command(d / "fire.####.vdb", "--emission-grid", "nosuch", "--plan", tmp_path / "c.json",
+                cwd=tmp_path)
+    assert p.returncode != 0 and 'no frame holds a grid "nosuch"' in p.stderr

@@ -175,18 +175,22 @@ def choose(path, rows, density, emission_grid=None, mode=None):
 
 
 def emission_params(mi, volume, mode, vmax, temperature_scale=None, temperature_offset=None,
-                    emission_scale=None, hottest_kelvin=None, brightness=None, cutoff=100.0):
+                    emission_scale=None, hottest_kelvin=None, brightness=None, cutoff=100.0,
+                    channels=None):
     """The emissiveheterogeneous parameters for a loaded emission `volume`
     whose max() is `vmax`, in `mode`; None entries get the defaults of this
     file's docstring. Returns (params, summary, why_not): params None and
     why_not a sentence when the volume cannot emit (empty, or never above
-    the cutoff)."""
+    the cutoff). volume None: the mapping alone (the scales, no volume and
+    no colour), e.g. a sequence's from its hottest frame's max. channels
+    None: the volume's (1 without one)."""
     hottest_kelvin = HOTTEST_KELVIN if hottest_kelvin is None else hottest_kelvin
     if brightness is None:
         brightness = BRIGHTNESS if mode == "temperature" else FLAME_BRIGHTNESS
     if not vmax > 0.0 and mode == "radiance":
         return None, "", f"its max is {vmax:g}: nothing to emit"
-    channels = volume.channel_count() if hasattr(volume, "channel_count") else 1
+    if channels is None:
+        channels = volume.channel_count() if hasattr(volume, "channel_count") else 1
     params = {"emission_scale": 1.0}
     if mode == "temperature":
         offset = 0.0 if temperature_offset is None else float(temperature_offset)
@@ -206,21 +210,25 @@ def emission_params(mi, volume, mode, vmax, temperature_scale=None, temperature_
                 return None, "", (f"its hottest value maps to {hottest:.4g} K, which gives no "
                                   "visible light (raise --temperature-scale)")
             emission_scale = brightness / y
-        params.update(temperature=volume, temperature_scale=float(temperature_scale),
-                      temperature_offset=offset, temperature_cutoff=cutoff,
-                      emission_scale=float(emission_scale))
+        params.update(temperature_scale=float(temperature_scale), temperature_offset=offset,
+                      temperature_cutoff=float(cutoff), emission_scale=float(emission_scale))
+        if volume is not None:
+            params["temperature"] = volume
         summary = (f"temperature mode, kelvin = (value - {offset:g}) x {temperature_scale:.6g} "
                    f"(max {vmax:.6g} -> {hottest:.0f} K), emission_scale {emission_scale:.4g} "
                    f"(hottest luminance {y * emission_scale:.3g})")
     else:
         if emission_scale is None:
             emission_scale = brightness / vmax
-        params.update(emission=volume, emission_scale=float(emission_scale))
+        params.update(emission_scale=float(emission_scale))
         if channels == 3:
             colour = "its own colour (3 channels)"
         else:
-            params["color"] = {"type": "rgb", "value": list(FIRE_RGB)}
             colour = f"a {FIRE_KELVIN:.0f} K blackbody's colour"
+        if volume is not None:
+            params["emission"] = volume
+            if channels != 3:
+                params["color"] = {"type": "rgb", "value": list(FIRE_RGB)}
         summary = (f"radiance mode, {colour}, emission_scale {emission_scale:.4g} "
                    f"(max {vmax:.6g} -> luminance {vmax * emission_scale:.3g})")
     return params, summary, None
@@ -233,3 +241,37 @@ def emissive_interior(interior, params):
     out["type"] = "emissiveheterogeneous"
     out.update(params)
     return out
+
+
+def fixed_scales(mapping):
+    """emission_params()'s keyword arguments for a mapping fixed in advance
+    (the "emission" of a sequence's plan, sequence.py: one for all frames):
+    its scales, so that nothing is derived from a frame's own max()"""
+    out = {k: mapping[k] for k in ("temperature_scale", "temperature_offset", "emission_scale")
+           if mapping.get(k) is not None}
+    if mapping.get("temperature_cutoff") is not None:
+        out["cutoff"] = mapping["temperature_cutoff"]
+    return out
+
+
+def add_emission(mi, scene_dict, nvdb, name, mode, filter_type="trilinear", **scales):
+    """Makes scene_dict's medium (its "box" interior) glow with grid `name`
+    of `nvdb`, in `mode`, with emission_params(); scales: its overrides
+    (None or absent: the defaults, from this grid's max()). Returns
+    (rendered, summary, why_not): rendered a dict of what glows (grid, mode,
+    max and the scales), or None with why_not a sentence where the grid
+    cannot emit (empty, or never above the cutoff): then the scene stays as
+    it was. nanovdb-render's single files (render.py) and sequences
+    (scene.framed_scene with a plan) both come here."""
+    from .facts import volume_facts
+    volume = mi.load_dict({"type": "nanovdbvolume", "filename": str(nvdb), "grid": name,
+                           "use_grid_transform": True, "filter_type": filter_type})
+    facts = volume_facts(volume)
+    params, summary, why_not = emission_params(mi, volume, mode, facts["max"], **scales)
+    if params is None:
+        if facts["index_dims"] == [1, 1, 1] and facts["max"] == 0:
+            why_not = "it holds no active voxels"
+        return None, summary, why_not
+    scene_dict["box"]["interior"] = emissive_interior(scene_dict["box"]["interior"], params)
+    return (dict(grid=name, mode=mode, max=facts["max"],
+                 **{k: v for k, v in params.items() if isinstance(v, float)}), summary, None)

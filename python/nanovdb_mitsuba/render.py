@@ -229,24 +229,18 @@ def add_emission(mi, scene_dict, path, nvdb, name, mode, found, filter_type, ove
     picks the scales from the loaded grid's max()); says what it chose.
     Returns what it rendered (a dict), or None where the grid cannot emit
     (empty, or never hot enough): then the scene stays as it was."""
-    volume = mi.load_dict({"type": "nanovdbvolume", "filename": str(nvdb), "grid": name,
-                           "use_grid_transform": True, "filter_type": filter_type})
-    facts = volume_facts(volume)
-    params, summary, why_not = fire.emission_params(mi, volume, mode, facts["max"], **overrides)
+    rendered, summary, why_not = fire.add_emission(mi, scene_dict, nvdb, name, mode, filter_type,
+                                                   **overrides)
     listed = ", ".join(f'"{n}"' for n in found) or "none by name"
-    if params is None:
-        if facts["index_dims"] == [1, 1, 1] and facts["max"] == 0:
-            why_not = "it holds no active voxels"
+    if rendered is None:
         if not quiet:
             print(f"{path}: emission grid \"{name}\" is empty ({why_not}): rendering without "
                   "emission")
         return None
-    scene_dict["box"]["interior"] = fire.emissive_interior(scene_dict["box"]["interior"], params)
     if not quiet:
         print(f"{path}: emission grids: {listed}; \"{name}\" glows: {summary}; albedo "
               f"{fire.FIRE_ALBEDO:g}")
-    return dict(grid=name, mode=mode, max=facts["max"],
-                **{k: v for k, v in params.items() if isinstance(v, float)})
+    return rendered
 
 
 def main(argv=None):

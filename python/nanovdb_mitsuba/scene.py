@@ -93,16 +93,26 @@ class _Box:
 
 
 def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
-                 integrator="volpathlocal", albedo=0.9, filter_type="trilinear",
-                 invalid_values="error", sequence=None):
+                 integrator="volpathlocal", albedo=None, filter_type="trilinear",
+                 invalid_values="error", sequence=None, emission_grid=None):
     """(scene dict, info) for `filename` (.nvdb). `scale` None: default_scale().
-    info holds the volume's world bbox, the camera and the scale used.
+    albedo None: 0.9, or the sequence's. info holds the volume's world bbox,
+    the camera and the scale used.
     sequence: a sequence summary (the plan of sequence.py: "bbox_min",
-    "bbox_max", the union of every frame's world box, and "scale"): the
-    camera frames that union and `scale` None takes its scale, so that every
-    frame of an animation gets the same camera and scale. With a sequence,
-    filename None gives the scene of an empty frame (camera and lights, no box)."""
+    "bbox_max", the union of every frame's world box, "scale", "grid",
+    "albedo" and "emission"): the camera frames that union, `scale` None
+    takes its scale and `grid` "" its grid, so that every frame of an
+    animation gets the same camera and scale. With a sequence,
+    filename None gives the scene of an empty frame (camera and lights, no box).
+    A sequence's "emission" (fire: its grid, mode and fixed scales) makes
+    the medium glow with that grid of `filename` (emission_grid: another
+    name for it in this frame, or "none"); info["emission"] says what glows,
+    None where nothing does, info["emission_why_not"] why not."""
     volume = None
+    if sequence is not None and not grid:
+        grid = sequence.get("grid", "")
+    if albedo is None:
+        albedo = float(sequence.get("albedo", 0.9)) if sequence is not None else 0.9
     if filename is not None or sequence is None:
         vdict = {"type": "nanovdbvolume", "filename": str(filename), "use_grid_transform": True,
                  "filter_type": filter_type, "invalid_values": invalid_values}
@@ -144,5 +154,19 @@ def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
                          "albedo": {"type": "rgb", "value": [albedo] * 3}, "scale": scale},
         }
     info = dict(bbox_min=[float(x) for x in bb.min], bbox_max=[float(x) for x in bb.max],
-                camera=cam, scale=scale, volume=volume)
+                camera=cam, scale=scale, volume=volume, emission=None)
+    mapping = sequence.get("emission") if sequence is not None else None
+    if volume is not None and mapping and emission_grid != "none":
+        # The fire of a sequence's frame: the plan's grid, mode and scales
+        # (one mapping for every frame), not this frame's own max()
+        from . import fire
+        name = emission_grid or mapping["grid"]
+        try:
+            rendered, _, why_not = fire.add_emission(mi, scene, filename, name, mapping["mode"],
+                                                     filter_type, **fire.fixed_scales(mapping))
+        except RuntimeError as e:  # e.g. no such grid in this frame's file
+            rendered, why_not = None, str(e).rsplit("[NanoVDBVolume] ", 1)[-1].strip()
+        info["emission"] = rendered
+        if why_not:
+            info["emission_why_not"] = why_not
     return scene, info

@@ -23,6 +23,17 @@ renders it once the file exists (the video, if any, shows a black frame in
 its place). A frame whose grid holds no voxels (or lacks the grid) is
 reported and rendered as what it is: the sky and the sun without a volume.
 A frame that cannot be read is reported and skipped like a missing one.
+
+Fire: the scan also picks the emission grid a single file would glow with
+(fire.py's names, or --emission-grid; the one most frames would choose) and
+records each frame's emission max. One mapping serves every frame, so that
+the fire does not flicker: temperature mode's temperature_scale maps the
+largest max over the frames to fire.HOTTEST_KELVIN, and one emission_scale
+(that temperature's luminance fire.BRIGHTNESS; in radiance mode, the
+largest max's luminance fire.FLAME_BRIGHTNESS). It is stored in the plan
+("emission"), so that every shard renders with the same. A frame without
+the grid, or whose grid is empty, renders without emission and says so in
+its line.
 """
 import json
 import os
@@ -33,12 +44,18 @@ import sys
 import tempfile
 import time
 
-from nanovdb_mitsuba import setup, vdb2nvdb
+from nanovdb_mitsuba import fire, setup, vdb2nvdb
 from nanovdb_mitsuba.facts import volume_facts
 from nanovdb_mitsuba.scene import framed_scene
 
-PLAN_VERSION = 1
+# 2: the fire ("emission", "albedo", the frames' "emission_max"); a version-1
+# plan (no emission) is refused, to be written again
+PLAN_VERSION = 2
 SCALE_RULE = "median over the frames with voxels of each frame's default scale"
+# The fire options (render.py's) as they reach render_sequence; a plan
+# records those it was scanned with (its "emission_options")
+EMISSION_OPTIONS = ("emission_grid", "emission_mode", "temperature_scale", "temperature_offset",
+                    "emission_scale")
 
 # '####' or '%04d' / '%d' in a file name
 _TOKEN = re.compile(r"#+|%(0?\d*)d")
@@ -172,28 +189,46 @@ def default_grid(rows):
 
 
 def convert(path, grid, tmpdir):
-    """Grid `grid` of `path` into a .nvdb in tmpdir (vdb2nvdb: a level set
-    becomes a fog volume); FrameError with vdb2nvdb's message"""
+    """Grid `grid` (a name, or a list of names) of `path` into a .nvdb in
+    tmpdir (vdb2nvdb: a level set becomes a fog volume); FrameError with
+    vdb2nvdb's message"""
     out = os.path.join(tmpdir, os.path.basename(path) + ".nvdb")
-    r = subprocess.run([vdb2nvdb(), path, out, "--verify", "0", "--grid", grid],
-                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    cmd = [vdb2nvdb(), path, out, "--verify", "0"]
+    for g in ([grid] if isinstance(grid, str) else grid):
+        cmd += ["--grid", g]
+    r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if r.returncode != 0:
         lines = r.stdout.strip().splitlines() or [f"vdb2nvdb failed ({r.returncode})"]
         raise FrameError(lines[-1])
     return out
 
 
-def load_frame(mi, path, grid, tmpdir, filter_type="trilinear"):
-    """(status, why, volume, nvdb) of one frame: status "ok" (volume loaded,
-    nvdb the file it reads), "empty" (no such grid, or no positive value)
-    or "missing"; FrameError where the file cannot be read"""
+def resolve(rows, name):
+    """The grid of [(name, type)] called `name`, exactly or else
+    case-insensitively (one match); None without one"""
+    names = [n for n, _ in rows]
+    if name in names:
+        return name
+    folded = [n for n in names if n.lower() == name.lower()]
+    return folded[0] if len(folded) == 1 else None
+
+
+def load_frame(mi, path, grid, tmpdir, filter_type="trilinear", emission=None, rows=None):
+    """(status, why, volume, nvdb, emission_name) of one frame: status "ok"
+    (volume loaded, nvdb the file it reads), "empty" (no such grid, or no
+    positive value) or "missing"; FrameError where the file cannot be read.
+    emission: the sequence's emission grid, converted beside the density;
+    emission_name is its name in this file, None where the file lacks it.
+    rows: the file's grids, if already listed."""
     if not os.path.exists(path):
-        return "missing", "no such file", None, None
-    rows = list_grids(path)
+        return "missing", "no such file", None, None, None
+    rows = list_grids(path) if rows is None else rows
     if grid not in [n for n, _ in rows]:
         listed = ", ".join(f'"{n}"' for n, _ in rows) or "no grids"
-        return "empty", f'no grid "{grid}" (the file holds {listed})', None, None
-    nvdb = convert(path, grid, tmpdir) if path.lower().endswith(".vdb") else path
+        return "empty", f'no grid "{grid}" (the file holds {listed})', None, None, None
+    ename = resolve(rows, emission) if emission else None
+    grids = [grid] + ([ename] if ename and ename != grid else [])
+    nvdb = convert(path, grids, tmpdir) if path.lower().endswith(".vdb") else path
 
     def load(f):
         try:
@@ -206,44 +241,134 @@ def load_frame(mi, path, grid, tmpdir, filter_type="trilinear"):
     if facts["grid_class"] == "level set" and nvdb == path:
         # A .nvdb level set: made a fog volume, as a .vdb's is
         del volume
-        nvdb = convert(path, grid, tmpdir)
+        nvdb = convert(path, grids, tmpdir)
         volume = load(nvdb)
         facts = volume_facts(volume)
     if not facts["max"] > 0.0:
         why = ("holds no active voxels" if facts["index_dims"] == [1, 1, 1]
                else "holds no positive density")
-        return "empty", f'grid "{grid}" {why}', None, None
-    return "ok", "", volume, nvdb
+        return "empty", f'grid "{grid}" {why}', None, None, ename
+    return "ok", "", volume, nvdb, ename
 
 
 # The plan: what every shard must agree on
 
-def scan(mi, pattern, frames, grid="", scale=None, filter_type="trilinear", log=print):
-    """The plan of `frames` of `pattern` (a dict, see plan_json): every frame
-    read once for its status, world box and default scale"""
-    from nanovdb_mitsuba.scene import default_scale
-    if not grid:
-        # The density most frames would be rendered with alone
+def choose_emission(pattern, rows_by_frame, density, emission_grid=None, mode=None):
+    """(name, mode, found, why) of a sequence's emission grid, from
+    {frame: [(name, type)]}: the grid a single file would glow with
+    (fire.choose: by name, or `emission_grid`), the one most frames would
+    choose (ties: fire.EMISSION_NAMES's order), so that one grid and one
+    mode serve every frame. found: the emission-like grids of any frame;
+    name None and why a sentence without one."""
+    def preference(n):
+        low = n.lower()
+        return fire.EMISSION_NAMES.index(low) if low in fire.EMISSION_NAMES else len(
+            fire.EMISSION_NAMES)
+    found = sorted({n for rows in rows_by_frame.values()
+                    for n in fire.emission_candidates([r[0] for r in rows], exclude=density)},
+                   key=lambda n: (preference(n), n))
+    if emission_grid is not None and emission_grid.lower() == "none":
+        return None, None, found, "--no-emission"
+    if emission_grid:
+        name = emission_grid
+        if not any(resolve(rows, name) for rows in rows_by_frame.values()):
+            held = sorted({n for rows in rows_by_frame.values() for n, _ in rows})
+            listed = ", ".join(f'"{n}"' for n in held) or "no grids"
+            raise SystemExit(f'nanovdb-render: {pattern.text}: no frame holds a grid "{name}" '
+                             f"for --emission-grid; the frames hold: {listed}")
+    else:
         votes = {}
-        for f in frames:
-            path = pattern.path(f)
-            if os.path.exists(path):
-                try:
-                    name = default_grid(list_grids(path))
-                except FrameError:
-                    continue
-                if name:
-                    votes[name] = votes.get(name, 0) + 1
+        for rows in rows_by_frame.values():
+            c = fire.emission_candidates([n for n, _ in rows], exclude=density)
+            if c:
+                votes[c[0]] = votes.get(c[0], 0) + 1
+        if not votes:
+            return None, None, found, "no grid named " + ", ".join(fire.EMISSION_NAMES)
+        name = min(votes, key=lambda n: (-votes[n], preference(n), n))
+    # Its mode and type from the first frame that holds it (fire.choose
+    # checks them as for a single file)
+    f, rows = next((f, rows) for f, rows in sorted(rows_by_frame.items()) if resolve(rows, name))
+    held, mode = fire.choose(pattern.path(f), rows, density, resolve(rows, name), mode)
+    return (held if not emission_grid else name), mode, found, ""
+
+
+def emission_mapping(mi, plan, name, mode, entries, rows_by_frame, options):
+    """plan["emission"]: one mapping for every frame, fire.emission_params
+    given the largest emission max over the frames (None, and
+    plan["emission_why"], where no frame can glow)"""
+    glowing = [e for e in entries if e.get("emission_max") is not None]
+    if not glowing:
+        plan["emission_why"] = f'no frame with voxels holds a grid "{name}"'
+        return None
+    top = max(glowing, key=lambda e: e["emission_max"])
+    vtype = next((dict(rows).get(resolve(rows, name)) for rows in rows_by_frame.values()
+                  if resolve(rows, name)), "float")
+    scales = {k: options.get(k) for k in ("temperature_scale", "temperature_offset",
+                                          "emission_scale")}
+    params, summary, why_not = fire.emission_params(
+        mi, None, mode, top["emission_max"], channels=3 if vtype.startswith("vec3") else 1,
+        **scales)
+    if params is None:
+        plan["emission_why"] = (f'grid "{name}" at its largest (frame {top["frame"]}): '
+                                f"{why_not}")
+        return None
+    given = [f"--{k.replace('_', '-')}" for k, v in scales.items() if v is not None]
+    if mode == "temperature":
+        rule = (f"temperature_scale maps the largest max over the frames to "
+                f"{fire.HOTTEST_KELVIN:g} K, emission_scale gives that temperature "
+                f"luminance {fire.BRIGHTNESS:g}")
+    else:
+        rule = (f"emission_scale gives the largest max over the frames luminance "
+                f"{fire.FLAME_BRIGHTNESS:g}")
+    if given:
+        rule += " (" + ", ".join(given) + " as given)"
+    return dict(grid=name, mode=mode, max=top["emission_max"], max_frame=top["frame"],
+                rule=rule, summary=summary,
+                **{k: v for k, v in params.items() if isinstance(v, float)})
+
+
+def scan(mi, pattern, frames, grid="", scale=None, filter_type="trilinear", log=print,
+         **emission_options):
+    """The plan of `frames` of `pattern` (a dict, see plan_json): every frame
+    read once for its status, world box and default scale, and its emission
+    grid's max. emission_options: render.py's fire options (EMISSION_OPTIONS;
+    emission_grid "none": no fire)"""
+    from nanovdb_mitsuba.facts import volume_facts
+    from nanovdb_mitsuba.scene import default_scale
+    options = {k: emission_options.get(k) for k in EMISSION_OPTIONS}
+    unknown = set(emission_options) - set(EMISSION_OPTIONS)
+    if unknown:
+        raise TypeError(f"scan: unknown options {sorted(unknown)}")
+    # The grids of every frame, once: the density and the emission grid
+    # most frames would be rendered with alone
+    rows_by_frame = {}
+    for f in frames:
+        path = pattern.path(f)
+        if os.path.exists(path):
+            try:
+                rows_by_frame[f] = list_grids(path)
+            except FrameError:
+                continue
+    if not grid:
+        votes = {}
+        for rows in rows_by_frame.values():
+            name = default_grid(rows)
+            if name:
+                votes[name] = votes.get(name, 0) + 1
         grid = max(votes, key=votes.get) if votes else "density"
+    ename, mode, found, no_emission = choose_emission(
+        pattern, rows_by_frame, grid, options["emission_grid"], options["emission_mode"])
     entries = []
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         for i, f in enumerate(frames):
             entry = {"frame": f, "file": pattern.path(f)}
             try:
-                status, why, volume, nvdb = load_frame(mi, entry["file"], grid, tmp, filter_type)
+                status, why, volume, nvdb, held = load_frame(
+                    mi, entry["file"], grid, tmp, filter_type, emission=ename,
+                    rows=rows_by_frame.get(f))
             except FrameError as e:
-                status, why, volume, nvdb = "error", str(e), None, None
+                status, why, volume, nvdb, held = "error", str(e), None, None, None
             entry["status"] = status
             if why:
                 entry["why"] = why
@@ -252,6 +377,15 @@ def scan(mi, pattern, frames, grid="", scale=None, filter_type="trilinear", log=
                 entry["bbox_min"] = [float(x) for x in bb.min]
                 entry["bbox_max"] = [float(x) for x in bb.max]
                 entry["scale"] = float(default_scale(volume))
+                if ename and not held:
+                    entry["emission_why"] = f'no grid "{ename}"'
+                elif held:
+                    # The emission grid's max (an upper bound of its lookups)
+                    ev = volume if held == grid else mi.load_dict(
+                        {"type": "nanovdbvolume", "filename": nvdb, "grid": held,
+                         "use_grid_transform": True, "filter_type": filter_type})
+                    entry["emission_max"] = float(volume_facts(ev)["max"])
+                    del ev
                 del volume
                 if nvdb != entry["file"]:
                     os.remove(nvdb)
@@ -273,7 +407,16 @@ def scan(mi, pattern, frames, grid="", scale=None, filter_type="trilinear", log=
         "scale": float(scale) if scale is not None else float(
             statistics.median(e["scale"] for e in ok)),
         "scale_rule": "--scale" if scale is not None else SCALE_RULE,
+        # A fire's smoke: fire.FIRE_ALBEDO wherever a frame holds an
+        # emission grid, rendered or not (as for a single file)
+        "albedo": fire.FIRE_ALBEDO if (ename or found) else 0.9,
+        "emission_found": found,
+        "emission_options": {k: v for k, v in options.items() if v is not None},
     }
+    plan["emission"] = emission_mapping(mi, plan, ename, mode, ok, rows_by_frame,
+                                        options) if ename else None
+    if not ename:
+        plan["emission_why"] = no_emission
     return plan
 
 
@@ -299,11 +442,30 @@ def read_plan(path):
     except (OSError, ValueError) as e:
         raise SystemExit(f"nanovdb-render: plan \"{path}\": {e}")
     missing = [k for k in ("nanovdb_sequence", "pattern", "grid", "frames", "bbox_min",
-                           "bbox_max", "scale") if k not in plan]
+                           "bbox_max", "scale", "albedo", "emission") if k not in plan]
     if missing or plan.get("nanovdb_sequence") != PLAN_VERSION:
         raise SystemExit(f"nanovdb-render: plan \"{path}\": not a version-{PLAN_VERSION} "
-                         f"sequence plan (missing: {', '.join(missing) or 'none'})")
+                         f"sequence plan (missing: {', '.join(missing) or 'none'}); write it "
+                         "again: the same command with --plan and a new FILE")
     return plan
+
+
+def emission_line(plan, rendered=True):
+    """The fire of a plan in one line: the mapping every frame shares"""
+    em = plan.get("emission")
+    head = f"{plan['pattern']}: "
+    if not rendered and em:
+        return head + f'emission grid "{em["grid"]}": not rendered (--no-emission)'
+    if not em:
+        why = plan.get("emission_why", "")
+        found = plan.get("emission_found") or []
+        listed = (" (emission grids " + ", ".join(f'"{n}"' for n in found) + ")") if found else ""
+        return head + f"no emission: {why}{listed}"
+    with_grid = [e for e in plan["frames"] if e.get("emission_max") is not None]
+    ok = [e for e in plan["frames"] if e["status"] == "ok"]
+    return (head + f'emission grid "{em["grid"]}" in {len(with_grid)} of {len(ok)} frames with '
+            f"voxels; one mapping for all frames, from the largest max (frame "
+            f"{em['max_frame']}): {em['summary']}; albedo {plan['albedo']:g}")
 
 
 def summary_line(plan):
@@ -336,22 +498,25 @@ def _ranges(frames):
 
 # A frame's scene, the same on every shard
 
-def frame_scene(mi, plan, volume_file, res, spp, integrator, filter_type):
+def frame_scene(mi, plan, volume_file, res, spp, integrator, filter_type, emission_grid=None):
     """(scene dict, info) of a plan's frame: framed_scene with the plan's
-    camera and scale; volume_file None (an empty frame): no box, the lights"""
+    camera, scale, albedo and fire (emission_grid: its name in this frame,
+    or "none"); volume_file None (an empty frame): no box, the lights"""
     return framed_scene(mi, volume_file, grid=plan["grid"], sequence=plan, res=res, spp=spp,
-                        integrator=integrator, filter_type=filter_type)
+                        integrator=integrator, filter_type=filter_type,
+                        emission_grid=emission_grid)
 
 
-def scene_json(scene, entry, grid):
+def scene_json(scene, entry, grid, emission_grid=None):
     """A scene dict as JSON text (sorted keys): transforms as their
-    matrices, the volume as the frame's file and grid (not the temporary
-    .nvdb it was converted into), so that shards compare byte for byte"""
+    matrices, the volumes as the frame's file and grid (not the temporary
+    .nvdb it was converted into; the emission's, under "temperature" or
+    "emission", as emission_grid), so that shards compare byte for byte"""
     import numpy as np
 
-    def plain(v):
+    def plain(v, key=None):
         if isinstance(v, dict):
-            return {k: plain(x) for k, x in v.items()}
+            return {k: plain(x, k) for k, x in v.items()}
         if isinstance(v, (list, tuple)):
             return [plain(x) for x in v]
         if isinstance(v, (str, int, float, bool)) or v is None:
@@ -359,7 +524,8 @@ def scene_json(scene, entry, grid):
         if type(v).__name__.startswith("ScalarTransform4"):
             return {"matrix": np.array(v.matrix).tolist()}
         if type(v).__name__ == "Volume" or "Volume" in type(v).__name__:
-            return {"type": "nanovdbvolume", "file": entry["file"], "grid": grid,
+            g = emission_grid if key in ("temperature", "emission") and emission_grid else grid
+            return {"type": "nanovdbvolume", "file": entry["file"], "grid": g,
                     "use_grid_transform": True}
         return str(v)
     return json.dumps(plain(scene), sort_keys=True, indent=1) + "\n"
@@ -401,18 +567,26 @@ def write_frame(mi, image, png):
 def render_sequence(spec, output=None, frames=None, shard=None, plan_path=None, overwrite=False,
                     video=None, grid="", spp=64, res=256, variant="llvm_ad_rgb",
                     integrator="volpathlocal", scale=None, filter_type="trilinear",
-                    scene_json_dir=None, log=print):
+                    scene_json_dir=None, log=print, emission_grid=None, emission_mode=None,
+                    temperature_scale=None, temperature_offset=None, emission_scale=None):
     """Renders the frames of `spec` (see the module's doc). frames: a list
     of frame numbers (default: from the first to the last file found, or the
     plan's); shard (I, N); plan_path: read the plan there if it exists,
-    else scan, write it there and return without rendering. Returns a dict:
-    plan, rendered / skipped / missing / empty / failed frame lists, seconds."""
+    else scan, write it there and return without rendering. The fire
+    options as render_file's (emission_grid "none": no emission; with a
+    plan, the others must be the plan's). Returns a dict: plan, rendered /
+    skipped / missing / empty / failed frame lists, the frames rendered
+    without their emission ("no_emission": {frame: why}), seconds."""
     import mitsuba as mi
     import drjit as dr
     import numpy as np
     mi.set_variant(variant)
     setup(mi)
     pattern = parse_pattern(spec)
+    options = dict(emission_grid=emission_grid, emission_mode=emission_mode,
+                   temperature_scale=temperature_scale, temperature_offset=temperature_offset,
+                   emission_scale=emission_scale)
+    no_emission = emission_grid is not None and emission_grid.lower() == "none"
     plan = None
     if plan_path and os.path.exists(plan_path):
         plan = read_plan(plan_path)
@@ -422,6 +596,18 @@ def render_sequence(spec, output=None, frames=None, shard=None, plan_path=None, 
         if scale is not None and scale != plan["scale"]:
             raise SystemExit(f"nanovdb-render: --scale {scale:g} but the plan \"{plan_path}\" "
                              f"has scale {plan['scale']:g}: write a new plan with --scale")
+        # The fire is the plan's: an option given now must be the one it
+        # was scanned with (--no-emission only switches it off)
+        scanned = plan.get("emission_options", {})
+        for k, v in options.items():
+            if v is None or (k == "emission_grid" and v.lower() == "none"):
+                continue
+            if scanned.get(k) != v:
+                flag = "--" + k.replace("_", "-")
+                was = f"{flag} {scanned[k]}" if k in scanned else f"no {flag}"
+                raise SystemExit(f"nanovdb-render: {flag} {v} but the plan \"{plan_path}\" was "
+                                 f"written with {was} (one fire for all shards): write a new "
+                                 f"plan with {flag}")
         by_frame = {e["frame"]: e for e in plan["frames"]}
         if frames is not None:
             outside = [f for f in frames if f not in by_frame]
@@ -440,23 +626,31 @@ def render_sequence(spec, output=None, frames=None, shard=None, plan_path=None, 
             frames = list(range(min(found), max(found) + 1))
         log(f"{pattern.text}: scanning {len(frames)} frames for their boxes and scales")
         plan = scan(mi, pattern, frames, grid=grid, scale=scale, filter_type=filter_type,
-                    log=log)
+                    log=log, **options)
         log(summary_line(plan))
+        log(emission_line(plan))
         if plan_path:
             write_plan(plan, plan_path)
             log(f"wrote the plan {plan_path}; render with --plan {plan_path} "
                 "[--shard I/N] (nothing rendered yet)")
             return dict(plan=plan, rendered=[], skipped=[], missing=[], empty=[], failed=[],
-                        seconds=0.0)
+                        no_emission={}, seconds=0.0)
     else:
         log(summary_line(plan))
+        log(emission_line(plan, rendered=not no_emission))
+    glow = plan.get("emission") if not no_emission else None
+    if glow and integrator != "volpathlocal":
+        raise SystemExit(f"nanovdb-render: {pattern.text}: grid \"{glow['grid']}\" emits light, "
+                         f"which only the volpathlocal integrator renders, not {integrator}; "
+                         "leave --integrator out, or add --no-emission")
     entries = [e for e in plan["frames"] if frames is None or e["frame"] in frames]
     if shard is not None:
         entries = shard_frames(entries, shard)
     outpat = output_pattern(output, pattern)
     if os.path.dirname(outpat.prefix):
         os.makedirs(os.path.dirname(outpat.prefix), exist_ok=True)
-    result = dict(plan=plan, rendered=[], skipped=[], missing=[], empty=[], failed=[])
+    result = dict(plan=plan, rendered=[], skipped=[], missing=[], empty=[], failed=[],
+                  no_emission={})
     todo = [e for e in entries if overwrite or not written(outpat.path(e["frame"]))]
     skipped = [e["frame"] for e in entries if e not in todo]
     result["skipped"] = skipped
@@ -473,21 +667,32 @@ def render_sequence(spec, output=None, frames=None, shard=None, plan_path=None, 
             # The file as it is now, on this machine (the plan may be older)
             path = pattern.path(f)
             try:
-                status, why, volume, nvdb = load_frame(mi, path, plan["grid"], tmp, filter_type)
+                status, why, volume, nvdb, held = load_frame(
+                    mi, path, plan["grid"], tmp, filter_type,
+                    emission=glow["grid"] if glow else None)
             except FrameError as e:
-                status, why, volume, nvdb = "error", str(e), None, None
+                status, why, volume, nvdb, held = "error", str(e), None, None, None
             if status in ("missing", "error"):
                 result["missing" if status == "missing" else "failed"].append(f)
                 log(f"{head}: {path}: {why}: skipped, no image written")
                 continue
             del volume
             scene, info = frame_scene(mi, plan, nvdb if status == "ok" else None, res, spp,
-                                      integrator, filter_type)
+                                      integrator, filter_type,
+                                      emission_grid=held if glow and held else "none")
+            dark = None  # why this frame renders without its emission
+            if glow and status == "ok":
+                if not held:
+                    dark = f'no grid "{glow["grid"]}"'
+                elif info.get("emission") is None:
+                    dark = f'grid "{held}" is empty: {info.get("emission_why_not", "")}'
+            if dark:
+                result["no_emission"][f] = dark
             png = outpat.path(f)
             if scene_json_dir is not None:
                 name = os.path.splitext(os.path.basename(png))[0] + ".scene.json"
                 with open(os.path.join(scene_json_dir, name), "w") as fh:
-                    fh.write(scene_json(scene, dict(entry, file=path), plan["grid"]))
+                    fh.write(scene_json(scene, dict(entry, file=path), plan["grid"], held))
             img = mi.render(mi.load_dict(scene), spp=spp, seed=f)
             dr.eval(img)
             write_frame(mi, np.array(img, dtype=np.float32), png)
@@ -499,6 +704,8 @@ def render_sequence(spec, output=None, frames=None, shard=None, plan_path=None, 
             left = len(todo) - i - 1
             eta = sum(times) / len(times) * left
             what = "" if status == "ok" else f" ({why}: the sky and the sun only)"
+            if dark:
+                what = f" (without emission: {dark})"
             result["rendered" if status == "ok" else "empty"].append(f)
             log(f"{head}: wrote {png}{what} in {dt:.1f} s; {left} to go, about {eta:.0f} s left")
     result["seconds"] = time.perf_counter() - started
@@ -563,13 +770,15 @@ def write_video(path, pngs, res, log=print, fps=24):
 def add_arguments(ap):
     g = ap.add_argument_group(
         "sequences", "INPUT 'smoke.####.vdb', 'smoke.%04d.vdb' or a folder of numbered files "
-        "renders every frame (out.0001.png ...) with one camera and one density scale")
+        "renders every frame (out.0001.png ...) with one camera, one density scale and one fire "
+        "mapping (the emission scales from the largest emission max over the frames)")
     g.add_argument("--frames", metavar="A-B[:S]", help="the frames to render: 10-120, 10-120:2, "
                    "7, 1-5,9 (default: from the first file to the last)")
     g.add_argument("--shard", metavar="I/N", help="render every N-th frame from the I-th (0-based), "
                    "e.g. $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT; needs --plan")
     g.add_argument("--plan", metavar="FILE", help="the sequence's summary (JSON: union box, "
-                   "scale, frames): read if FILE exists, else scan, write FILE and stop")
+                   "scale, fire mapping, frames): read if FILE exists, else scan, write FILE "
+                   "and stop")
     g.add_argument("--overwrite", action="store_true",
                    help="render frames whose PNG and EXR exist (default: skip them)")
     g.add_argument("--video", metavar="FILE", help="encode the frames at the end (.mp4 needs "
@@ -590,11 +799,6 @@ def handles(a, ap):
             ap.error(f"--{used[0].replace('_', '-')} is for sequences ('smoke.####.vdb', "
                      "'smoke.%04d.vdb' or a folder); the input is one file")
         return False
-    fire_used = [o for o in ("emission_mode", "temperature_scale", "temperature_offset",
-                             "emission_scale") if getattr(a, o, None) is not None]
-    if fire_used or getattr(a, "emission_grid", None) not in (None, "none"):
-        ap.error("emission (--emission-*, --temperature-*) is not rendered in sequences yet: "
-                 "render single frames for fire")
     try:
         frames = parse_frames(a.frames) if a.frames else None
         shard = parse_shard(a.shard) if a.shard else None
@@ -607,7 +811,8 @@ def handles(a, ap):
                         overwrite=a.overwrite, video=a.video, grid=a.grid, spp=a.spp, res=a.res,
                         variant=a.variant, integrator=a.integrator, scale=a.scale,
                         filter_type=a.filter, scene_json_dir=a.scene_json,
-                        log=lambda s: print(s, flush=True))
+                        log=lambda s: print(s, flush=True),
+                        **{k: getattr(a, k, None) for k in EMISSION_OPTIONS})
     except RuntimeError as e:
         raise SystemExit(f"nanovdb-render: {str(e).rsplit('] ', 1)[-1].strip()}")
     return True
