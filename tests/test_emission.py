@@ -60,10 +60,12 @@ def planck(lambda_nm, t):
     return 1e-9 * 2 * H * C ** 2 / (lam ** 5 * np.expm1(H * C / (lam * K * t)))
 
 
-def blackbody_rgb(t):
+def blackbody_rgb(t, clip=None):
     """What a spectral film makes of a blackbody at t kelvin: the integral of
     Planck x CIE 1931 over [360, 830] nm (0.25 nm steps), normalized as
-    Mitsuba's spectrum_to_srgb, in linear sRGB; and its luminance Y."""
+    Mitsuba's spectrum_to_srgb, in linear sRGB; and its luminance Y. clip
+    (default: in RGB variants): negative components clipped to 0, as the RGB
+    variants' table does (blackbody.h)."""
     lam = np.arange(360.0, 830.0 + 1e-9, 0.25)
     if dr.is_jit_v(mi.Float):
         cmf = np.array(mi.cie1931_xyz(mi.Float(lam)), dtype=np.float64).T
@@ -73,7 +75,10 @@ def blackbody_rgb(t):
     w = np.full(len(lam), 0.25)
     w[0] = w[-1] = 0.125
     xyz = (p[:, None] * cmf * w[:, None]).sum(axis=0) * CIE_Y_NORMALIZATION
-    return XYZ_TO_SRGB @ xyz, xyz[1]
+    rgb = XYZ_TO_SRGB @ xyz
+    if clip if clip is not None else not mi.is_spectral:
+        rgb = np.maximum(rgb, 0.0)
+    return rgb, xyz[1]
 
 
 def film(size):

@@ -25,14 +25,17 @@
                         (Rayleigh-Jeans; 20 % off at 1e6 K).
 
     Colours of a blackbody below about 1500 K have a negative blue component
-    in sRGB (outside its gamut); they are kept, as spectral rendering would
-    give them.
+    in linear sRGB (outside its gamut; 1000 K: -0.09 of Y). The table clips
+    negative components to 0: a negative radiance in an RGB variant's path
+    makes negative samples (Mitsuba warns of each) and cancellations. Spectral
+    variants keep the spectrum, whose film colour is then negative there.
 */
 
 #pragma once
 
 #include <mitsuba/core/spectrum.h>
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -90,8 +93,9 @@ inline Color<double, 3> xyz(double t) {
 }
 
 /**
- * A blackbody's colour (linear sRGB, or Y for mono) per lane, from a table
- * on the variant's backend: row i holds (log Y, R/Y, G/Y, B/Y) at
+ * A blackbody's colour (linear sRGB, negative components clipped to 0; Y for
+ * mono) per lane, from a table on the variant's backend: row i holds
+ * (log Y, R/Y, G/Y, B/Y) at
  * T_i = kTmin (kTmax / kTmin)^(i / (kTableSize - 1)).
  */
 template <typename Float> class BlackbodyColor {
@@ -111,9 +115,9 @@ public:
                    g = -0.969256 * c[0] + 1.875991 * c[1] + 0.041556 * c[2],
                    b = 0.055648 * c[0] - 0.204043 * c[1] + 1.057311 * c[2];
             rows[4 * i + 0] = ScalarFloat(std::log(c[1]));
-            rows[4 * i + 1] = ScalarFloat(r / c[1]);
-            rows[4 * i + 2] = ScalarFloat(g / c[1]);
-            rows[4 * i + 3] = ScalarFloat(b / c[1]);
+            rows[4 * i + 1] = ScalarFloat(std::max(r, 0.0) / c[1]);
+            rows[4 * i + 2] = ScalarFloat(std::max(g, 0.0) / c[1]);
+            rows[4 * i + 3] = ScalarFloat(std::max(b, 0.0) / c[1]);
         }
         m_rows = dr::load<FloatStorage>(rows.data(), rows.size());
     }
