@@ -76,11 +76,12 @@ def camera(bbox, fov=35.0, direction=(1.0, 0.55, 1.3), fill=0.85):
     return dict(origin=origin, target=c, fov=fov, distance=hi, radius=r)
 
 
-def enclosing_cube(mi, volume, margin=1e-4):
+def enclosing_cube(mi, volume, margin=1e-4, box=None):
     """to_world of a "cube" shape ([-1, 1]^3) that encloses the volume's
     world box (volume.bbox(): with use_grid_transform, the grid's world box)
-    with a relative margin, so that the medium inside it is not clipped"""
-    bb = volume.bbox()
+    with a relative margin, so that the medium inside it is not clipped.
+    box: another box (an object with .min and .max) to enclose instead"""
+    bb = box if box is not None else volume.bbox()
     centre = [0.5 * (bb.min[k] + bb.max[k]) for k in range(3)]
     half = [max(0.5 * (bb.max[k] - bb.min[k]), 1e-6) * (1.0 + margin) for k in range(3)]
     return mi.ScalarTransform4f().translate(centre).scale(half)
@@ -146,9 +147,14 @@ def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
                 "irradiance": {"type": "rgb", "value": [6, 5.7, 5.1]}},
     }
     if volume is not None:
+        # A sequence's frames: the cube fits the union box, the same in every
+        # frame (the medium ends at its volume's own box inside it), so that
+        # the scene's bounds, which the sun's sampling takes as constants of
+        # the kernel, do not make each frame compile its own kernel
+        union = _Box(sequence["bbox_min"], sequence["bbox_max"]) if sequence else None
         scene["box"] = {
             "type": "cube",  # [-1, 1]^3, fitted to the volume's world box
-            "to_world": enclosing_cube(mi, volume),
+            "to_world": enclosing_cube(mi, volume, box=union),
             "bsdf": {"type": "null"},
             "interior": {"type": "heterogeneous", "sigma_t": volume,
                          "albedo": {"type": "rgb", "value": [albedo] * 3}, "scale": scale},
