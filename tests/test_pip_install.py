@@ -70,7 +70,7 @@ def test_pip_install_fresh_venv(venv, tmp_path):
     site = _site_packages(venv)
     pkg = site / "nanovdb_mitsuba"
     installed = [pkg / "plugins" / "nanovdbvolume.so", pkg / "plugins" / "volpathlocal.so",
-                 pkg / "bin" / "vdb2nvdb", venv / "bin" / "vdb2nvdb", venv / "bin" / "nanovdb-render"]
+                 pkg / "plugins" / "emissiveheterogeneous.so", pkg / "bin" / "vdb2nvdb", venv / "bin" / "vdb2nvdb", venv / "bin" / "nanovdb-render"]
     for f in installed:
         assert f.exists(), f"pip install . did not install {f}"
     assert os.access(pkg / "bin" / "vdb2nvdb", os.X_OK)
@@ -88,11 +88,16 @@ print("package", nanovdb_mitsuba.__file__)
 mi.set_variant("scalar_rgb")
 vol = mi.load_dict({{"type": "nanovdbvolume", "filename": "c.nvdb"}})
 print("resolution", list(vol.resolution()))
+# A .vdb straight in (the installed plugin links OpenVDB), and the emissive medium
+vdb = mi.load_dict({{"type": "nanovdbvolume", "filename": "c.vdb"}})
+print("vdb resolution", list(vdb.resolution()), mi.traverse(vdb)["vdb_imported"])
+print("medium", type(mi.load_dict({{"type": "emissiveheterogeneous", "emission": 1.0}})).__name__)
 print("integrator", type(mi.load_dict({{"type": "volpathlocal"}})).__name__)
 """], cwd=work, env=env)
     assert f"package {pkg / '__init__.py'}" in out, out
     assert re.search(r"resolution \[\d+, \d+, \d+\]", out), out
-    assert "integrator" in out
+    assert re.search(r"vdb resolution \[\d+, \d+, \d+\] True", out), out
+    assert "integrator" in out and "medium" in out
     # The render command: a .vdb in, PNG + EXR out
     out = _run(["nanovdb-render", "c.vdb", "-o", "c.png", "--res", "24", "--spp", "4"],
                cwd=work, env=env)
