@@ -16,7 +16,6 @@ installing: PYTHONPATH=python python3 -m nanovdb_mitsuba.render ...
 import argparse
 import functools
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -64,12 +63,7 @@ def convert(path, grids, tmpdir):
 def _grid_rows(path, _mtime_ns, _size):
     r = subprocess.run([vdb2nvdb(), "--list", path], stdout=subprocess.PIPE,
                        stderr=subprocess.STDOUT, text=True)
-    rows = []
-    for line in r.stdout.splitlines():
-        m = re.match(r'^\s+(\d+)\s+"(.*)"\s+(\S+)', line)
-        if m and int(m.group(1)) == len(rows):
-            rows.append((m.group(2), m.group(3)))
-    return tuple(rows)
+    return tuple(sequence.parse_list(r.stdout))
 
 
 def grid_rows(path):
@@ -116,10 +110,7 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
             density = rows[int(grid)][0] if grid.isdigit() and int(grid) < len(rows) else grid
         by_name = grid or (density if density.lower() == "density" else "")
         found = fire.emission_candidates([n for n, _ in rows], exclude=density)
-        if emission_grid is not None and emission_grid.lower() == "none":
-            chosen, mode = None, None
-        else:
-            chosen, mode = fire.choose(path, rows, density, emission_grid, emission_mode)
+        chosen, mode = fire.choose(path, rows, density, emission_grid, emission_mode)
         if chosen and integrator != "volpathlocal":
             raise SystemExit(f"nanovdb-render: {path}: grid \"{chosen}\" emits light, which "
                              f"only the volpathlocal integrator renders, not {integrator}; "

@@ -95,7 +95,7 @@ class _Box:
 
 def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
                  integrator="volpathlocal", albedo=None, filter_type="trilinear",
-                 invalid_values="error", sequence=None, emission_grid=None):
+                 invalid_values="error", sequence=None, emission_grid=None, volume=None):
     """(scene dict, info) for `filename` (.nvdb). `scale` None: default_scale().
     albedo None: 0.9, or the sequence's. info holds the volume's world bbox,
     the camera and the scale used.
@@ -108,23 +108,25 @@ def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
     A sequence's "emission" (fire: its grid, mode and fixed scales) makes
     the medium glow with that grid of `filename` (emission_grid: another
     name for it in this frame, or "none"); info["emission"] says what glows,
-    None where nothing does, info["emission_why_not"] why not."""
-    volume = None
+    None where nothing does, info["emission_why_not"] why not. volume:
+    `filename`'s volume, if the caller has loaded it already (a sequence's
+    frame: the same dict as here)."""
     if sequence is not None and not grid:
         grid = sequence.get("grid", "")
     if albedo is None:
         albedo = float(sequence.get("albedo", 0.9)) if sequence is not None else 0.9
-    if filename is not None or sequence is None:
+    if volume is None and (filename is not None or sequence is None):
         vdict = {"type": "nanovdbvolume", "filename": str(filename), "use_grid_transform": True,
                  "filter_type": filter_type, "invalid_values": invalid_values}
         if grid:
             vdict["grid"] = grid
         volume = mi.load_dict(vdict)
+    union = _Box(sequence["bbox_min"], sequence["bbox_max"]) if sequence is not None else None
     if sequence is not None:
-        bb = _Box(sequence["bbox_min"], sequence["bbox_max"]) if volume is None else volume.bbox()
+        bb = union if volume is None else volume.bbox()
         if scale is None:
             scale = float(sequence["scale"])
-        cam = camera(_Box(sequence["bbox_min"], sequence["bbox_max"]))
+        cam = camera(union)
     else:
         bb = volume.bbox()
         if scale is None:
@@ -151,7 +153,6 @@ def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
         # frame (the medium ends at its volume's own box inside it), so that
         # the scene's bounds, which the sun's sampling takes as constants of
         # the kernel, do not make each frame compile its own kernel
-        union = _Box(sequence["bbox_min"], sequence["bbox_max"]) if sequence else None
         scene["box"] = {
             "type": "cube",  # [-1, 1]^3, fitted to the volume's world box
             "to_world": enclosing_cube(mi, volume, box=union),

@@ -46,7 +46,7 @@ import time
 
 from nanovdb_mitsuba import fire, setup, vdb2nvdb
 from nanovdb_mitsuba.facts import volume_facts
-from nanovdb_mitsuba.scene import framed_scene
+from nanovdb_mitsuba.scene import default_scale, framed_scene
 
 # 2: the fire ("emission", "albedo", the frames' "emission_max"); a version-1
 # plan (no emission) is refused, to be written again
@@ -170,8 +170,13 @@ def list_grids(path):
     if r.returncode != 0:
         lines = r.stdout.strip().splitlines() or [f"vdb2nvdb --list failed ({r.returncode})"]
         raise FrameError(lines[-1])
+    return parse_list(r.stdout)
+
+
+def parse_list(text):
+    """[(name, type)] of the grid rows of vdb2nvdb --list's output"""
     rows = []
-    for line in r.stdout.splitlines():
+    for line in text.splitlines():
         m = re.match(r'^\s+(\d+)\s+"(.*)"\s+(\S+)', line)
         if m and int(m.group(1)) == len(rows):
             rows.append((m.group(2), m.group(3)))
@@ -179,13 +184,9 @@ def list_grids(path):
 
 
 def default_grid(rows):
-    """The grid nanovdb-render renders of a file: a float grid named
-    "density", else the first float grid, else the first grid"""
-    for name, vtype in rows:
-        if name.lower() == "density" and vtype == "float":
-            return name
-    floats = [name for name, vtype in rows if vtype == "float"]
-    return floats[0] if floats else (rows[0][0] if rows else "")
+    """The grid nanovdb-render renders of a file: fire.default_density's
+    choice, else the first grid"""
+    return fire.default_density(rows) or (rows[0][0] if rows else "")
 
 
 def convert(path, grid, tmpdir):
@@ -333,8 +334,6 @@ def scan(mi, pattern, frames, grid="", scale=None, filter_type="trilinear", log=
     read once for its status, world box and default scale, and its emission
     grid's max. emission_options: render.py's fire options (EMISSION_OPTIONS;
     emission_grid "none": no fire)"""
-    from nanovdb_mitsuba.facts import volume_facts
-    from nanovdb_mitsuba.scene import default_scale
     options = {k: emission_options.get(k) for k in EMISSION_OPTIONS}
     unknown = set(emission_options) - set(EMISSION_OPTIONS)
     if unknown:
@@ -498,13 +497,15 @@ def _ranges(frames):
 
 # A frame's scene, the same on every shard
 
-def frame_scene(mi, plan, volume_file, res, spp, integrator, filter_type, emission_grid=None):
+def frame_scene(mi, plan, volume_file, res, spp, integrator, filter_type, emission_grid=None,
+                volume=None):
     """(scene dict, info) of a plan's frame: framed_scene with the plan's
     camera, scale, albedo and fire (emission_grid: its name in this frame,
-    or "none"); volume_file None (an empty frame): no box, the lights"""
+    or "none"); volume_file None (an empty frame): no box, the lights;
+    volume: the frame's volume, if already loaded (load_frame)"""
     return framed_scene(mi, volume_file, grid=plan["grid"], sequence=plan, res=res, spp=spp,
                         integrator=integrator, filter_type=filter_type,
-                        emission_grid=emission_grid)
+                        emission_grid=emission_grid, volume=volume)
 
 
 def scene_json(scene, entry, grid, emission_grid=None):
@@ -523,7 +524,7 @@ def scene_json(scene, entry, grid, emission_grid=None):
             return v
         if type(v).__name__.startswith("ScalarTransform4"):
             return {"matrix": np.array(v.matrix).tolist()}
-        if type(v).__name__ == "Volume" or "Volume" in type(v).__name__:
+        if "Volume" in type(v).__name__:
             g = emission_grid if key in ("temperature", "emission") and emission_grid else grid
             return {"type": "nanovdbvolume", "file": entry["file"], "grid": g,
                     "use_grid_transform": True}
@@ -676,10 +677,11 @@ def render_sequence(spec, output=None, frames=None, shard=None, plan_path=None, 
                 result["missing" if status == "missing" else "failed"].append(f)
                 log(f"{head}: {path}: {why}: skipped, no image written")
                 continue
-            del volume
             scene, info = frame_scene(mi, plan, nvdb if status == "ok" else None, res, spp,
                                       integrator, filter_type,
-                                      emission_grid=held if glow and held else "none")
+                                      emission_grid=held if glow and held else "none",
+                                      volume=volume if status == "ok" else None)
+            del volume
             dark = None  # why this frame renders without its emission
             if glow and status == "ok":
                 if not held:

@@ -126,8 +126,6 @@ public:
         }
     }
 
-    const std::vector<Grid> &grids() const { return m_grids; }
-
     openvdb::GridPtrVec metadata() const {
         openvdb::GridPtrVec out;
         for (const Grid &g : m_grids)

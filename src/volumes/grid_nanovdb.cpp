@@ -369,10 +369,12 @@ public:
                         (unsigned long long) built.left_out, options.threshold);
                 const bool six = memory->six_channels;
                 if (half == 0) {
-                    summary = load_bytes(options.name, built.bytes, box, m_sampler, m_facts, six);
+                    summary = load_memory(options.name, built.bytes.data(), built.bytes.size(),
+                                          box, m_sampler, m_facts, six);
                 } else {
                     m_second = std::make_unique<Sampler>();
-                    load_bytes(options.name, built.bytes, box, *m_second, m_second_facts, six);
+                    load_memory(options.name, built.bytes.data(), built.bytes.size(), box,
+                                *m_second, m_second_facts, six);
                 }
             }
         }
@@ -836,34 +838,31 @@ private:
         return m_facts.backend_bytes + m_second_facts.backend_bytes;
     }
 
-    /// The file's grid `selector` (or, where a grid X is asked for and the
-    /// file holds "X[0:3]" and "X[3:6]", that pair: 6 channels)
     /**
      * A .vdb file's grid, converted in memory as vdb2nvdb converts it
      * (nanovdb_loader/vdb_import.h): only that grid is read, and no file is
      * written. What was done is kept for traverse() and to_string().
      */
     nanovdb_loader::GridSummary load_vdb(const std::string &selector) {
+        nanovdb_loader::VdbGrid g;
         try {
-            nanovdb_loader::VdbGrid g = nanovdb_loader::import_vdb_grid(m_filename, selector);
-            m_vdb.imported = true;
-            m_vdb.source_class = g.source_class;
-            m_vdb.fogged = g.fogged;
-            m_vdb.read_seconds = g.read_seconds;
-            m_vdb.convert_seconds = g.convert_seconds;
-            m_grid_index = g.index;
-            Log(Debug, "nanovdbvolume: \"%s\": grid \"%s\" read in %.3f s, converted in %.3f s%s",
-                m_filename, g.name, g.read_seconds, g.convert_seconds,
-                g.fogged ? " (a level set, made a fog volume)" : "");
-            m_facts.name = g.name;
-            return load(nanovdb_loader::GridSource::memory(m_filename, g.name, g.data.get(),
-                                                           g.size),
-                        g.size, std::nullopt, m_sampler, m_facts, false);
+            g = nanovdb_loader::import_vdb_grid(m_filename, selector);
         } catch (const nanovdb_loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
+        m_vdb.imported = true;
+        m_vdb.source_class = g.source_class;
+        m_vdb.fogged = g.fogged;
+        m_vdb.convert_seconds = g.convert_seconds;
+        m_grid_index = g.index;
+        Log(Debug, "nanovdbvolume: \"%s\": grid \"%s\" read in %.3f s, converted in %.3f s%s",
+            m_filename, g.name, g.read_seconds, g.convert_seconds,
+            g.fogged ? " (a level set, made a fog volume)" : "");
+        return load_memory(g.name, g.data.get(), g.size, std::nullopt, m_sampler, m_facts, false);
     }
 
+    /// The file's grid `selector` (or, where a grid X is asked for and the
+    /// file holds "X[0:3]" and "X[3:6]", that pair: 6 channels)
     nanovdb_loader::GridSummary load_file(const std::string &selector) {
         namespace loader = nanovdb_loader;
         try {
@@ -914,17 +913,17 @@ private:
                     std::nullopt, s, facts, six);
     }
 
-    /// The same for a grid built in memory (memory_source.h); `box`: the
-    /// volume's box if it is not the active one
-    nanovdb_loader::GridSummary load_bytes(const std::string &name,
-                                           const std::vector<uint8_t> &bytes,
-                                           const std::optional<nanovdb_loader::IndexBox> &box,
-                                           Sampler &s, GridFacts &facts, bool six) {
+    /// The same for a grid in memory: built here (memory_source.h), or a
+    /// .vdb's converted grid; `box`: the volume's box if it is not the
+    /// active one
+    nanovdb_loader::GridSummary load_memory(const std::string &name, const uint8_t *bytes,
+                                            size_t size,
+                                            const std::optional<nanovdb_loader::IndexBox> &box,
+                                            Sampler &s, GridFacts &facts, bool six) {
         try {
             facts.name = name;
-            return load(nanovdb_loader::GridSource::memory(m_filename, name, bytes.data(),
-                                                           bytes.size()),
-                        bytes.size(), box, s, facts, six);
+            return load(nanovdb_loader::GridSource::memory(m_filename, name, bytes, size), size,
+                        box, s, facts, six);
         } catch (const nanovdb_loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
@@ -1364,7 +1363,7 @@ private:
     struct {
         bool imported = false, fogged = false;
         uint32_t source_class = 0; ///< OpenVDB's GridClass of the grid in the file
-        double read_seconds = 0, convert_seconds = 0;
+        double convert_seconds = 0;
     } m_vdb;
     ScalarVector3i m_index_min_host;
     ScalarVector3i m_resolution_host;
