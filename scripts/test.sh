@@ -7,14 +7,16 @@ cd "$(dirname "$0")/.."
 bash scripts/install.sh
 echo "== doctest (ctest)"
 ctest --test-dir build --output-on-failure --parallel "$(nproc)"
-echo "== fuzz (short run; NVDB_FUZZ_SECONDS=${NVDB_FUZZ_SECONDS:-20})"
-# tests/fuzz/fuzz_nvdb.cpp with clang (libFuzzer + ASan + UBSan), in its own
-# build directory. Seeds: small generated grids + ../shared/data (in place).
+echo "== fuzz (short runs; NVDB_FUZZ_SECONDS=${NVDB_FUZZ_SECONDS:-20} each)"
+# tests/fuzz/fuzz_nvdb.cpp (.nvdb) and fuzz_vdb.cpp (.vdb) with clang
+# (libFuzzer + ASan + UBSan), in their own build directory. Seeds: the
+# committed corpus (tests/fuzz/corpus/, what the campaign found:
+# scripts/fuzz_campaign.sh), small generated grids and ../shared/data.
 CC=clang-14 CXX=clang++-14 cmake -S . -B build-fuzz -G Ninja -DNVDB_BUILD_FUZZ=ON \
   -DNVDB_BUILD_TOOLS=OFF -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DPython_EXECUTABLE="$(command -v "${PYTHON:-python3}")" >/dev/null
-cmake --build build-fuzz --target fuzz_nvdb
-mkdir -p build-fuzz/seeds build-fuzz/corpus
+cmake --build build-fuzz --target fuzz_nvdb fuzz_vdb
+mkdir -p build-fuzz/seeds build-fuzz/corpus build-fuzz/seeds-vdb build-fuzz/corpus-vdb
 for g in single_voxel lower_tiles upper_tiles empty constant_cube nonzero_background \
          far_coords root_tiles_negative fog_sphere; do
   [ -f "build-fuzz/seeds/${g}_zip.nvdb" ] ||
@@ -35,8 +37,19 @@ done
   build/bin/nvdb_make_test_grid single_voxel build-fuzz/seeds/single_voxel_key_bit20.nvdb \
     --root-key-bit 20 >/dev/null
 shared="${NVDB_SHARED_DATA:-../shared/data}"
-build-fuzz/bin/fuzz_nvdb -max_total_time="${NVDB_FUZZ_SECONDS:-20}" -print_final_stats=1 \
-  build-fuzz/corpus build-fuzz/seeds $( [ -d "$shared" ] && echo "$shared" ) 2>&1 | tail -n 8
+# (-max_len: the typed seeds are 1.2-2.4 MB; the default 1 MiB would cut
+# them short, and no quantized or Vec3f grid would reach the lookups)
+build-fuzz/bin/fuzz_nvdb -max_total_time="${NVDB_FUZZ_SECONDS:-20}" -print_final_stats=1 -max_len=2500000 \
+  build-fuzz/corpus tests/fuzz/corpus/nvdb build-fuzz/seeds \
+  $( [ -d "$shared" ] && echo "$shared" ) 2>&1 | tail -n 8
+# Small OpenVDB files from the generator (every grid class and type it makes)
+for g in multi cloud_16 sphere_ls_6 empty drifting_cloud_0; do
+  [ -f "build-fuzz/seeds-vdb/$g.vdb" ] ||
+    build/bin/vdb2nvdb generate "$g" "build-fuzz/seeds-vdb/$g.vdb" >/dev/null
+done
+build-fuzz/bin/fuzz_vdb -max_total_time="${NVDB_FUZZ_SECONDS:-20}" -print_final_stats=1 \
+  -rss_limit_mb=2048 build-fuzz/corpus-vdb tests/fuzz/corpus/vdb build-fuzz/seeds-vdb \
+  $( [ -d "$shared" ] && echo "$shared" ) 2>&1 | tail -n 8
 echo "== bench (fast mode: the harness runs end to end; timings are not asserted)"
 "${PYTHON:-python3}" bench/run.py --fast
 # pytest last: its summary line closes the run

@@ -19,6 +19,43 @@ namespace nanovdb_loader {
 /// Every message starts with "\"<path>\": " and then says what is wrong.
 struct Error : std::runtime_error { using std::runtime_error::runtime_error; };
 
+/// Text from a file (a grid name, a reader's message) made safe to show:
+/// valid UTF-8 is kept, and control characters and bytes that are not
+/// UTF-8 become \xNN. (A damaged name with a stray 0xF5 once made the
+/// Python binding fail to decode the whole error, file name included.)
+inline std::string printable_text(const std::string &s) {
+    static const char hex[] = "0123456789ABCDEF";
+    std::string out;
+    out.reserve(s.size());
+    const auto *p = reinterpret_cast<const unsigned char *>(s.data());
+    const size_t n = s.size();
+    for (size_t i = 0; i < n;) {
+        const unsigned char c = p[i];
+        size_t len = c < 0x80 ? 1 : (c >= 0xC2 && c <= 0xDF) ? 2
+                   : (c >= 0xE0 && c <= 0xEF) ? 3 : (c >= 0xF0 && c <= 0xF4) ? 4 : 0;
+        bool ok = len > 0 && i + len <= n;
+        for (size_t k = 1; ok && k < len; ++k)
+            ok = (p[i + k] & 0xC0) == 0x80;
+        // (no overlong or surrogate forms, nothing past U+10FFFF)
+        if (ok && len == 3)
+            ok = !(c == 0xE0 && p[i + 1] < 0xA0) && !(c == 0xED && p[i + 1] >= 0xA0);
+        if (ok && len == 4)
+            ok = !(c == 0xF0 && p[i + 1] < 0x90) && !(c == 0xF4 && p[i + 1] >= 0x90);
+        if (ok && len == 1 && (c < 0x20 || c == 0x7F) && c != '\n' && c != '\t')
+            ok = false;
+        if (ok) {
+            out.append(s, i, len);
+            i += len;
+        } else {
+            out += "\\x";
+            out += hex[c >> 4];
+            out += hex[c & 15];
+            i += 1;
+        }
+    }
+    return out;
+}
+
 /// Payload codec of a segment (numbering of nanovdb::io::Codec).
 enum class Codec : uint16_t { None = 0, Zip = 1, Blosc = 2 };
 

@@ -1,6 +1,13 @@
 // nanovdb_loader/vdb_import.h -- an OpenVDB .vdb file's grid as NanoVDB bytes,
 // in memory, for nanovdbvolume's `filename` (no .nvdb file is written)
 //
+// The file is read in a separate process, nanovdb-vdb-reader, under a
+// memory budget and a deadline (src/loader/vdb_import.cpp says why): a
+// damaged file that crashes OpenVDB's reader, or asks it for gigabytes,
+// becomes an Error here that says the file is damaged. The caller's
+// process is never at risk. The grid bytes that come back are not
+// trusted: the caller validates them as any .nvdb grid.
+//
 // Only the grid asked for is read (its metadata first, to choose it, then
 // that grid alone) and converted with vdb2nvdb's rules (tools/vdb2nvdb/
 // prepare.cpp, to_nano.cpp): a float grid as float, a level set first made
@@ -29,7 +36,9 @@ struct VdbGrid {
     uint32_t index = 0;         ///< its position in the file
     uint32_t source_class = 0;  ///< OpenVDB's GridClass (0 unknown, 1 level set, 2 fog, 3 staggered)
     bool fogged = false;        ///< a level set made a fog volume
-    double read_seconds = 0, convert_seconds = 0;
+    double read_seconds = 0, convert_seconds = 0; ///< inside the reader
+    double reader_seconds = 0;     ///< the reader process, start to reply
+    uint64_t reader_peak_bytes = 0; ///< its peak resident memory
 };
 
 /// Whether the plugin was built with OpenVDB (.vdb files can be read)

@@ -93,11 +93,12 @@ inline std::string codec_name(uint16_t c) {
     }
 }
 
-/// Name stored in a fixed-size, possibly unterminated, character field.
+/// Name stored in a fixed-size, possibly unterminated, character field
+/// (printable_text: a damaged name's stray bytes become \xNN)
 inline std::string fixed_string(const uint8_t *p, size_t n) {
     size_t len = 0;
     while (len < n && p[len] != 0) ++len;
-    return std::string(reinterpret_cast<const char *>(p), len);
+    return printable_text(std::string(reinterpret_cast<const char *>(p), len));
 }
 
 [[noreturn]] inline void fail(const std::string &path, const std::string &msg) {

@@ -1,30 +1,50 @@
-// An OpenVDB file's grid as NanoVDB bytes (see nanovdb_loader/vdb_import.h).
-// The conversion is vdb2nvdb's own (tools/vdb2nvdb: prepare.h, to_nano.h),
-// linked as the vdb2nvdb_convert library, so the plugin and the converter
-// cannot drift apart.
+// An OpenVDB file's grid as NanoVDB bytes, read in a separate process
+// (see nanovdb_loader/vdb_import.h).
+//
+// Why a process: OpenVDB's reader trusts its stream. Damaged files were
+// seen to reach malloc and free with garbage sizes ("malloc(): invalid
+// size", "double free or corruption") and to drive a load to 10 GB. Those
+// bugs are in OpenVDB's templates, inside a format with no checksums, so
+// no check made from outside can be shown to stop them all: validating
+// the stream first would mean a second, complete parser of every version
+// of the format. A process of its own contains them whatever they are:
+//  * nanovdb-vdb-reader (vdb_reader_main.cpp) reads and converts the grid
+//    under a memory budget (vdb_reader_budget.h) and sends the NanoVDB
+//    buffer back on a pipe (vdb_reader_protocol.h);
+//  * this side waits with a deadline, caps every length it reads, and
+//    turns a crash, a refusal or a timeout into an Error that names the
+//    file and says it is damaged;
+//  * the buffer then goes through the .nvdb validation (validate_grid),
+//    as a file's grid does, before any lookup touches it.
+// What it costs is a process start and a copy through the pipe: measured
+// in bench/vdb_load.py (PERF_LOG 27).
 
 #include <nanovdb_loader/vdb_import.h>
 
 #include <algorithm>
 #include <cctype>
 #include <filesystem>
-#include <memory>
 
 #if defined(NVDB_WITH_OPENVDB)
-#include <chrono>
+#include "vdb_reader_budget.h"
+#include "vdb_reader_protocol.h"
+
+#include <dlfcn.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <cerrno>
+#include <chrono>
+#include <cstdlib>
 #include <cstring>
-#include <fstream>
-#include <mutex>
+#include <vector>
 
-#include <openvdb/io/Archive.h>
-#include <openvdb/io/GridDescriptor.h>
-#include <openvdb/openvdb.h>
-
-#include "../../tools/vdb2nvdb/error.h"
-#include "../../tools/vdb2nvdb/format.h"
-#include "../../tools/vdb2nvdb/prepare.h"
-#include "../../tools/vdb2nvdb/to_nano.h"
+extern char **environ;
 #endif
 
 namespace nanovdb_loader {
@@ -54,207 +74,263 @@ bool vdb_import_available() { return true; }
 
 namespace {
 
+namespace rd = vdb_reader;
 using Clock = std::chrono::steady_clock;
 
-double since(Clock::time_point t0) {
-    return std::chrono::duration<double>(Clock::now() - t0).count();
+/// nanovdb-vdb-reader: NVDB_VDB_READER, else beside the library that holds
+/// this code (a plugin in plugins/, the reader in bin/, in the build tree
+/// and in the installed package alike)
+std::string reader_path() {
+    if (const char *p = std::getenv("NVDB_VDB_READER"); p && *p)
+        return p;
+    Dl_info info{};
+    std::vector<fs::path> tried;
+    if (dladdr((void *) &reader_path, &info) && info.dli_fname) {
+        std::error_code ec;
+        fs::path self = fs::canonical(info.dli_fname, ec);
+        if (!ec)
+            for (const fs::path &p : { self.parent_path().parent_path() / "bin",
+                                       self.parent_path() }) {
+                fs::path candidate = p / "nanovdb-vdb-reader";
+                if (::access(candidate.c_str(), X_OK) == 0)
+                    return candidate.string();
+                tried.push_back(candidate);
+            }
+    }
+    std::string where;
+    for (const fs::path &p : tried)
+        where += (where.empty() ? "" : ", ") + p.string();
+    throw Error("nanovdb-vdb-reader, which reads .vdb files for nanovdbvolume, is not "
+                "installed beside the plugin (looked for " + where + "); set "
+                "NVDB_VDB_READER to its path, or reinstall nanovdb-mitsuba");
 }
 
-/// Whether a grid of this type converts (float, vec3s)
-bool convertible(const openvdb::GridBase &g) {
-    return g.isType<openvdb::FloatGrid>() || g.isType<openvdb::Vec3SGrid>();
+/// Seconds the reader may take: NVDB_VDB_READER_TIMEOUT, else 60 s and 2 s
+/// per MiB (an intact 74 MB grid takes ~1.5 s)
+double timeout_seconds(uint64_t file_bytes) {
+    if (const char *s = std::getenv("NVDB_VDB_READER_TIMEOUT")) {
+        char *end = nullptr;
+        double v = std::strtod(s, &end);
+        if (end != s && *end == '\0' && v > 0)
+            return v;
+    }
+    return 60.0 + 2.0 * double(file_bytes) / double(1 << 20);
 }
 
-/**
- * A .vdb file read as openvdb::io::File reads one grid (the header, the
- * grid descriptors, then one grid by its offsets), with the checks File
- * leaves out: every descriptor's offsets lie inside the file, and the grid's
- * read ends inside its own bytes with the stream intact. (File reads a grid
- * cut off by a truncated file as short buffers, silently.) Archive's
- * protected steps do the reading; nothing of the format is parsed here.
- */
-class CheckedVdbFile final : public openvdb::io::Archive {
-public:
-    struct Grid {
-        openvdb::io::GridDescriptor descriptor;
-        openvdb::GridBase::Ptr grid; ///< its metadata only, until read()
-    };
-
-    CheckedVdbFile(const std::string &path, const std::string &label)
-        : m_label(label), m_is(path, std::ios::binary) {
-        if (!m_is)
-            throw Error(label + ": cannot open: " + std::strerror(errno));
-        m_size = (int64_t) fs::file_size(path);
-        readHeader(m_is);
-        // Tagged as io::File tags its stream (the grids' readers expect it)
-        m_meta = std::make_shared<openvdb::io::StreamMetadata>();
-        m_meta->setSeekable(true);
-        openvdb::io::setStreamMetadataPtr(m_is, m_meta, /*transfer=*/false);
-        setFormatVersion(m_is);
-        setLibraryVersion(m_is);
-        setDataCompression(m_is);
-        openvdb::MetaMap file_meta;
-        file_meta.readMeta(m_is);
-        if (!inputHasGridOffsets())
-            throw Error(label + ": an OpenVDB stream without grid offsets (written by "
-                        "io::Stream): convert it with vdb2nvdb");
-        int32_t count = readGridCount(m_is);
-        if (!m_is || count < 0 || count > (1 << 20))
-            throw Error(label + ": cannot read as an OpenVDB file: bad grid count");
-        for (int32_t i = 0; i < count; ++i) {
-            Grid g;
-            g.grid = g.descriptor.read(m_is);
-            const openvdb::io::GridDescriptor &d = g.descriptor;
-            if (!m_is || !(0 < d.getGridPos() && d.getGridPos() <= d.getBlockPos() &&
-                           d.getBlockPos() <= d.getEndPos()))
-                throw Error(label + ": cannot read as an OpenVDB file: grid " +
-                            std::to_string(i) + "'s offsets are invalid");
-            if (d.getEndPos() > m_size)
-                throw Error(label + ": truncated: grid \"" + d.gridName() + "\" ends at byte " +
-                            std::to_string(d.getEndPos()) + ", the file has " +
-                            std::to_string(m_size));
-            // Its metadata (name, class), as File::readAllGridMetadata
-            d.seekToGrid(m_is);
-            readGridCompression(m_is);
-            g.grid->readMeta(m_is);
-            g.grid->setName(d.gridName());
-            if (!m_is)
-                throw Error(label + ": cannot read as an OpenVDB file: grid \"" + d.gridName() +
-                            "\"'s metadata");
-            d.seekToEnd(m_is);
-            m_grids.push_back(std::move(g));
-        }
+struct Fd {
+    int fd = -1;
+    Fd() = default;
+    explicit Fd(int f) : fd(f) {}
+    Fd(const Fd &) = delete;
+    Fd &operator=(const Fd &) = delete;
+    ~Fd() { reset(); }
+    void reset() {
+        if (fd >= 0)
+            ::close(fd);
+        fd = -1;
     }
-
-    openvdb::GridPtrVec metadata() const {
-        openvdb::GridPtrVec out;
-        for (const Grid &g : m_grids)
-            out.push_back(g.grid);
-        return out;
-    }
-
-    /// Grid i, whole (an instance: its parent's tree, as File reads it)
-    openvdb::GridBase::Ptr read(size_t i) {
-        const openvdb::io::GridDescriptor &d = m_grids[i].descriptor;
-        openvdb::GridBase::Ptr grid = read_one(d);
-        if (d.isInstance()) {
-            size_t parent = m_grids.size();
-            for (size_t k = 0; k < m_grids.size(); ++k)
-                if (m_grids[k].descriptor.uniqueName() == d.instanceParentName())
-                    parent = k;
-            if (parent == m_grids.size())
-                throw Error(m_label + ": grid \"" + d.gridName() + "\" is an instance of \"" +
-                            d.instanceParentName() + "\", which the file does not hold");
-            grid->setTree(read_one(m_grids[parent].descriptor)->baseTreePtr());
-        }
-        return grid;
-    }
-
-private:
-    openvdb::GridBase::Ptr read_one(const openvdb::io::GridDescriptor &d) {
-        openvdb::GridBase::Ptr grid = openvdb::GridBase::createGrid(d.gridType());
-        grid->setSaveFloatAsHalf(d.saveFloatAsHalf());
-        d.seekToGrid(m_is);
-        Archive::readGrid(grid, d, m_is);
-        if (!m_is || (int64_t) m_is.tellg() > d.getEndPos())
-            throw Error(m_label + ": grid \"" + d.gridName() + "\" is corrupt or truncated: "
-                        "its data runs past its end in the file");
-        return grid;
-    }
-
-    std::string m_label;
-    std::ifstream m_is;
-    openvdb::io::StreamMetadata::Ptr m_meta;
-    int64_t m_size = 0;
-    std::vector<Grid> m_grids;
 };
 
-/// The grid `selector` names among `meta` (metadata only): vdb2nvdb's and
-/// the .nvdb files' rule, a name first, then an index, "" the first
-/// convertible grid
-size_t choose(const std::string &label, const openvdb::GridPtrVec &meta,
-              const std::string &selector) {
-    if (selector.empty()) {
-        for (size_t i = 0; i < meta.size(); ++i)
-            if (convertible(*meta[i]))
-                return i;
-        throw Error(label + ": no float or vec3s grid; the file holds: " +
-                    vdb2nvdb::list_grids(meta));
+/// The child, waited for whatever happens (no zombie, no orphan)
+struct Child {
+    pid_t pid = -1;
+    int status = 0;
+    rusage usage{};
+    bool waited = false;
+    void kill_and_wait() {
+        if (pid > 0 && !waited)
+            ::kill(pid, SIGKILL);
+        wait();
     }
-    for (size_t i = 0; i < meta.size(); ++i)
-        if (meta[i]->getName() == selector)
-            return i;
-    if (std::all_of(selector.begin(), selector.end(),
-                    [](unsigned char c) { return std::isdigit(c); }) && selector.size() < 10) {
-        size_t i = std::stoull(selector);
-        if (i < meta.size())
-            return i;
+    void wait() {
+        if (pid <= 0 || waited)
+            return;
+        waited = true;
+        while (::wait4(pid, &status, 0, &usage) < 0) {
+            if (errno != EINTR) { // (SIGCHLD ignored by the host: no status)
+                status = 0;
+                return;
+            }
+        }
     }
-    throw Error(label + ": no grid named \"" + selector + "\"; the file holds: " +
-                vdb2nvdb::list_grids(meta));
+    ~Child() { kill_and_wait(); }
+};
+
+std::string signal_text(int sig) {
+    const char *d = strsignal(sig);
+    return std::string(sigabbrev_np(sig) ? "SIG" + std::string(sigabbrev_np(sig)) : "signal " +
+                       std::to_string(sig)) + (d ? std::string(" (") + d + ")" : "");
+}
+
+/// The last line or two of what the reader printed, for the message
+std::string tail_text(const std::string &err) {
+    std::string s = err;
+    while (!s.empty() && std::isspace((unsigned char) s.back()))
+        s.pop_back();
+    size_t cut = s.size() > 300 ? s.size() - 300 : 0;
+    s = s.substr(cut);
+    for (char &c : s)
+        if (c == '\n' || c == '\r')
+            c = ' ';
+    return s.empty() ? "" : ": it printed \"" + printable_text(s) + "\"";
+}
+
+/// Reads the child's reply and its output until both pipes close, the
+/// reply grows past `cap`, or the deadline passes
+struct Transfer {
+    std::vector<uint8_t> reply;
+    std::string err;
+    bool too_long = false, timed_out = false;
+};
+
+Transfer transfer(int reply_fd, int err_fd, uint64_t cap, Clock::time_point deadline) {
+    Transfer t;
+    pollfd fds[2] = { { reply_fd, POLLIN, 0 }, { err_fd, POLLIN, 0 } };
+    std::vector<uint8_t> chunk(1 << 16);
+    // The header first (to size the buffer once), then the rest
+    size_t expected = sizeof(rd::Reply);
+    bool have_header = false;
+    while (fds[0].fd >= 0 || fds[1].fd >= 0) {
+        auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+        if (left.count() <= 0) {
+            t.timed_out = true;
+            return t;
+        }
+        int n = ::poll(fds, 2, int(std::min<int64_t>(left.count(), 1000)));
+        if (n < 0 && errno != EINTR)
+            return t;
+        for (pollfd &p : fds) {
+            if (p.fd < 0 || !(p.revents & (POLLIN | POLLHUP | POLLERR)))
+                continue;
+            ssize_t got;
+            if (&p == &fds[0]) {
+                size_t want = std::max<size_t>(1, std::min<size_t>(chunk.size(),
+                                  expected > t.reply.size() ? expected - t.reply.size() : 1));
+                got = ::read(p.fd, chunk.data(), want);
+                if (got > 0) {
+                    t.reply.insert(t.reply.end(), chunk.data(), chunk.data() + got);
+                    if (!have_header && t.reply.size() >= sizeof(rd::Reply)) {
+                        have_header = true;
+                        rd::Reply r;
+                        std::memcpy(&r, t.reply.data(), sizeof r);
+                        uint64_t body = uint64_t(std::min(r.name_bytes, rd::kMaxText)) +
+                                        std::min(r.message_bytes, rd::kMaxText) + r.grid_bytes;
+                        if (r.grid_bytes > cap) {
+                            t.too_long = true;
+                            return t;
+                        }
+                        expected = size_t(sizeof r + body);
+                        t.reply.reserve(expected);
+                    } else if (have_header && t.reply.size() > expected) {
+                        t.too_long = true;
+                        return t;
+                    }
+                }
+            } else {
+                got = ::read(p.fd, chunk.data(), chunk.size());
+                if (got > 0) {
+                    t.err.append((const char *) chunk.data(), size_t(got));
+                    if (t.err.size() > 8192)
+                        t.err.erase(0, t.err.size() - 4096);
+                }
+            }
+            if (got == 0 || (got < 0 && errno != EINTR && errno != EAGAIN))
+                p.fd = -1;
+        }
+    }
+    return t;
 }
 
 } // namespace
 
 VdbGrid import_vdb_grid(const std::string &path, const std::string &selector) {
-    static std::once_flag once;
-    std::call_once(once, [] { openvdb::initialize(); });
     const std::string label = "\"" + path + "\"";
     std::error_code ec;
     if (!fs::is_regular_file(path, ec))
         throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
+    const uint64_t file_bytes = fs::file_size(path, ec);
+    const std::string reader = reader_path();
+    const auto t0 = Clock::now();
+
+    int reply_pipe[2], err_pipe[2];
+    if (::pipe2(reply_pipe, O_CLOEXEC) != 0)
+        throw Error(label + ": cannot start the .vdb reader: pipe: " + std::strerror(errno));
+    Fd reply_r(reply_pipe[0]), reply_w(reply_pipe[1]);
+    if (::pipe2(err_pipe, O_CLOEXEC) != 0)
+        throw Error(label + ": cannot start the .vdb reader: pipe: " + std::strerror(errno));
+    Fd err_r(err_pipe[0]), err_w(err_pipe[1]);
+
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
+    posix_spawn_file_actions_adddup2(&actions, err_w.fd, 1);
+    posix_spawn_file_actions_adddup2(&actions, err_w.fd, 2);
+    posix_spawn_file_actions_adddup2(&actions, reply_w.fd, rd::kReplyFd);
+    std::vector<char *> argv = { const_cast<char *>(reader.c_str()),
+                                 const_cast<char *>(path.c_str()),
+                                 const_cast<char *>(selector.c_str()), nullptr };
+    Child child;
+    int rc = ::posix_spawn(&child.pid, reader.c_str(), &actions, nullptr, argv.data(), environ);
+    posix_spawn_file_actions_destroy(&actions);
+    if (rc != 0) {
+        child.pid = -1;
+        throw Error(label + ": cannot start the .vdb reader " + reader + ": " + std::strerror(rc));
+    }
+    reply_w.reset();
+    err_w.reset();
+
+    const double timeout = timeout_seconds(file_bytes);
+    const uint64_t cap = rd::memory_budget(file_bytes);
+    Transfer t = transfer(reply_r.fd, err_r.fd, cap,
+                          t0 + std::chrono::duration_cast<Clock::duration>(
+                                   std::chrono::duration<double>(timeout)));
+    child.kill_and_wait();
+    const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+
+    if (t.timed_out)
+        throw Error(label + ": damaged or hostile: its reader took longer than " +
+                    std::to_string(int(timeout)) + " s and was stopped "
+                    "(NVDB_VDB_READER_TIMEOUT sets the limit in seconds)");
+    if (t.too_long)
+        throw Error(label + ": damaged: its reader sent more than a file of its size can "
+                    "hold");
+    if (WIFSIGNALED(child.status))
+        throw Error(label + ": damaged: OpenVDB's reader crashed on it with " +
+                    signal_text(WTERMSIG(child.status)) + tail_text(t.err) +
+                    ". The reader runs in a process of its own (nanovdb-vdb-reader); "
+                    "nothing else was affected");
+
+    rd::Reply r;
+    if (t.reply.size() < sizeof r)
+        throw Error(label + ": the .vdb reader " + reader + " ended without a reply (exit " +
+                    std::to_string(WIFEXITED(child.status) ? WEXITSTATUS(child.status) : -1) +
+                    ")" + tail_text(t.err));
+    std::memcpy(&r, t.reply.data(), sizeof r);
+    const uint64_t body = uint64_t(r.name_bytes) + r.message_bytes + r.grid_bytes;
+    if (std::memcmp(r.magic, rd::kMagic, sizeof r.magic) != 0 || r.name_bytes > rd::kMaxText ||
+        r.message_bytes > rd::kMaxText || t.reply.size() != sizeof r + body)
+        throw Error(label + ": the .vdb reader " + reader + " sent a malformed reply (exit " +
+                    std::to_string(WIFEXITED(child.status) ? WEXITSTATUS(child.status) : -1) +
+                    ")" + tail_text(t.err));
+    const char *text = (const char *) t.reply.data() + sizeof r;
+    if (r.status != rd::Status::Ok)
+        throw Error(printable_text(std::string(text + r.name_bytes, r.message_bytes)));
+
     VdbGrid out;
-    auto t0 = Clock::now();
-    openvdb::GridBase::Ptr grid;
-    try {
-        // The grids' metadata (no voxels), to choose one, then that grid alone
-        CheckedVdbFile file(path, label);
-        openvdb::GridPtrVec meta = file.metadata();
-        if (meta.empty())
-            throw Error(label + ": an OpenVDB file without grids");
-        size_t i = choose(label, meta, selector);
-        if (!convertible(*meta[i]))
-            throw Error(label + ": grid " + vdb2nvdb::grid_summary(*meta[i]) +
-                        " cannot be read: only float and vec3s grids are supported (points, "
-                        "integer and double grids are not)");
-        out.index = uint32_t(i);
-        grid = file.read(i);
-        grid->setName(meta[i]->getName());
-    } catch (const Error &) {
-        throw;
-    } catch (const std::exception &e) {
-        throw Error(label + ": cannot read as an OpenVDB file (corrupt or truncated?): " +
-                    e.what());
-    }
-    out.read_seconds = since(t0);
-    t0 = Clock::now();
-    const std::string name = grid->getName();
-    try {
-        vdb2nvdb::Handle h;
-        { // (the OpenVDB grid is freed at the end of this scope, before the copy)
-            openvdb::GridPtrVec one{ std::move(grid) };
-            vdb2nvdb::Options opts;
-            opts.grids = { name };
-            std::vector<vdb2nvdb::Prepared> prepared =
-                vdb2nvdb::select_and_prepare(one, label, opts);
-            const vdb2nvdb::Prepared &p = prepared.front();
-            out.name = p.name;
-            out.source_class = uint32_t(p.source_class);
-            out.fogged = p.fogged;
-            h = p.grid ? vdb2nvdb::convert_one(*p.grid, vdb2nvdb::Quantize::Float, opts)
-                       : vdb2nvdb::convert_vec3(*p.vec);
-        }
-        // The handle itself is kept (no copy): the plugin copies it once,
-        // into the block its backend owns
-        out.size = h.size();
-        auto owner = std::make_shared<vdb2nvdb::Handle>(std::move(h));
-        out.data = std::shared_ptr<const uint8_t>(owner, owner->data());
-    } catch (const vdb2nvdb::Error &e) { // (its messages start with the label)
-        throw Error(e.what());
-    } catch (const std::exception &e) {
-        throw Error(label + ": cannot convert grid \"" + name + "\": " + e.what());
-    }
-    out.convert_seconds = since(t0);
+    out.name = printable_text(std::string(text, r.name_bytes));
+    out.index = r.index;
+    out.source_class = r.source_class;
+    out.fogged = r.fogged != 0;
+    out.read_seconds = r.read_seconds;
+    out.convert_seconds = r.convert_seconds;
+    out.reader_seconds = seconds;
+    out.reader_peak_bytes = r.peak_bytes;
+    out.size = size_t(r.grid_bytes);
+    // The grid bytes stay in the reply's vector (no second copy); the
+    // plugin copies them once, into the block its backend owns
+    auto owner = std::make_shared<std::vector<uint8_t>>(std::move(t.reply));
+    const size_t offset = sizeof r + r.name_bytes + r.message_bytes;
+    out.data = std::shared_ptr<const uint8_t>(owner, owner->data() + offset);
     return out;
 }
 

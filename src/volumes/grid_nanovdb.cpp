@@ -42,10 +42,15 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
 
  * - filename
    - |string|
-   - Path of the NanoVDB file (``.nvdb``) to load. Files written by NanoVDB
-     32.3 to 32.9 (OpenVDB 10 to 13) are read, uncompressed or with the ZIP
-     or BLOSC codec, including files with several grids or segments and raw
-     grid buffers.
+   - Path of the file to load. A NanoVDB file (``.nvdb``): files written by
+     NanoVDB 32.3 to 32.9 (OpenVDB 10 to 13) are read, uncompressed or with
+     the ZIP or BLOSC codec, including files with several grids or segments
+     and raw grid buffers. An OpenVDB file (``.vdb``): only the chosen grid
+     is read and converted as ``vdb2nvdb`` converts it, in a separate
+     process (``nanovdb-vdb-reader``) under a memory budget and a deadline,
+     so that a damaged file is an error that says so, never a crash of the
+     process that loads it. A Mitsuba grid file (``.vol``), as
+     ``gridvolume`` reads it.
 
  * - grid
    - |string|
@@ -577,6 +582,10 @@ public:
             put("vdb_source_class", m_vdb.source_class);
             put("vdb_fogged", m_vdb.fogged);
             put("vdb_convert_seconds", m_vdb.convert_seconds);
+            // the reader process (nanovdb_loader/vdb_import.h): start to
+            // reply, and its peak resident memory
+            put("vdb_reader_seconds", m_vdb.reader_seconds);
+            put("vdb_reader_peak_mb", m_vdb.reader_peak_mb);
         }
         m_trav.value_bytes = double(m_facts.value_bytes);
         put("value_bytes", m_trav.value_bytes);
@@ -854,10 +863,13 @@ private:
         m_vdb.source_class = g.source_class;
         m_vdb.fogged = g.fogged;
         m_vdb.convert_seconds = g.convert_seconds;
+        m_vdb.reader_seconds = g.reader_seconds;
+        m_vdb.reader_peak_mb = double(g.reader_peak_bytes) / double(1 << 20);
         m_grid_index = g.index;
-        Log(Debug, "nanovdbvolume: \"%s\": grid \"%s\" read in %.3f s, converted in %.3f s%s",
-            m_filename, g.name, g.read_seconds, g.convert_seconds,
-            g.fogged ? " (a level set, made a fog volume)" : "");
+        Log(Debug, "nanovdbvolume: \"%s\": grid \"%s\" read in %.3f s, converted in %.3f s%s "
+            "by nanovdb-vdb-reader (%.3f s, peak %.1f MB)", m_filename, g.name, g.read_seconds,
+            g.convert_seconds, g.fogged ? " (a level set, made a fog volume)" : "",
+            g.reader_seconds, m_vdb.reader_peak_mb);
         return load_memory(g.name, g.data.get(), g.size, std::nullopt, m_sampler, m_facts, false);
     }
 
@@ -1364,6 +1376,7 @@ private:
         bool imported = false, fogged = false;
         uint32_t source_class = 0; ///< OpenVDB's GridClass of the grid in the file
         double convert_seconds = 0;
+        double reader_seconds = 0, reader_peak_mb = 0; ///< the reader process's
     } m_vdb;
     ScalarVector3i m_index_min_host;
     ScalarVector3i m_resolution_host;

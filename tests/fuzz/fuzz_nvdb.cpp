@@ -10,7 +10,9 @@
 //   -> plan_readers -> lookups through nanovdb_drjit::Reader with that plan
 //      and with PNanoVDB's own algorithm: root_get_value and
 //      root_get_stencil_addresses at coordinates derived from the input
-//      (bbox corners, node boundaries, raw int32s).
+//      (bbox corners, node boundaries, raw int32s);
+//   -> the fast reader against the faithful one at the coordinates that the
+//      grid's tree touches (its tiles, nodes and voxels, and their borders).
 // Every value type the loader accepts (float, Half, Fp4/8/16, FpN, Vec3f) is
 // looked up with its own readers and compared with PNanoVDB's per-type ones.
 // Oracles, besides ASan/UBSan:
@@ -19,6 +21,13 @@
 //  * every value address is checked to lie inside the buffer;
 //  * every lookup is compared with PNanoVDB itself (C, 64-bit addresses):
 //    same value address and level; each stencil corner equals a traversal;
+//  * the differential oracle: the tree is walked with PNanoVDB's C API (root
+//    tiles by key, upper/lower children and active tiles, leaves and a few
+//    of their active voxels) and at each block's first and last voxel and
+//    the voxels just outside it (origin - 1, origin + extent), at most ~2000
+//    coordinates a grid, the fast reader (the plan's) and the faithful
+//    translation (plan.faithful()) must find the same level, value address
+//    and value bits, and both what PNanoVDB finds;
 //  * nanovdb_loader::Error is the only exception allowed.
 //
 // Build: cmake -DNVDB_BUILD_FUZZ=ON with clang (tests/fuzz/CMakeLists.txt).
@@ -39,6 +48,7 @@
 #include <sys/mman.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <optional>
@@ -202,6 +212,257 @@ void lookups(const Buffer &buf, const Root &root, const nio::ValidatedGrid &grid
     }
 }
 
+// ---------------------------------------------------------------------------
+//  The differential oracle: fast reader vs faithful translation, at the
+//  coordinates the input's tree touches
+// ---------------------------------------------------------------------------
+
+using Coord3 = std::array<int32_t, 3>;
+
+/// c + d on every axis, with int32 wrap-around (done in uint32: no UB)
+Coord3 offset(const Coord3 &c, int32_t d) {
+    return { int32_t(uint32_t(c[0]) + uint32_t(d)), int32_t(uint32_t(c[1]) + uint32_t(d)),
+             int32_t(uint32_t(c[2]) + uint32_t(d)) };
+}
+/// o + (x, y, z) * scale, as offset()
+Coord3 offset(const Coord3 &o, uint32_t x, uint32_t y, uint32_t z, uint32_t scale) {
+    return { int32_t(uint32_t(o[0]) + x * scale), int32_t(uint32_t(o[1]) + y * scale),
+             int32_t(uint32_t(o[2]) + z * scale) };
+}
+
+/// Coordinates in groups, one per tile, node or leaf, so that sampling keeps
+/// a group whole (both sides of a boundary)
+struct Groups {
+    std::vector<Coord3> coords;
+    std::vector<uint32_t> begin; ///< first coordinate of each group
+    size_t size() const { return begin.size(); }
+    void open() { begin.push_back(uint32_t(coords.size())); }
+    /// A block of `extent`^3 voxels at `o` (a tile or a node): its first and
+    /// last voxel, and the voxels just outside it on either side, where holes
+    /// hide (o - 1 and o + extent, on every axis)
+    void block(const Coord3 &o, uint32_t extent) {
+        open();
+        coords.push_back(o);
+        coords.push_back(offset(o, int32_t(extent - 1)));
+        coords.push_back(offset(o, -1));
+        coords.push_back(offset(o, int32_t(extent)));
+    }
+};
+
+/// The walk's bounds (tree order; a grid past them is walked in part):
+/// groups per level, nodes visited per level
+constexpr size_t MAX_GROUPS = size_t(1) << 14;
+constexpr size_t MAX_UPPERS = 256, MAX_LOWERS = 4096, MAX_LEAVES = size_t(1) << 14;
+
+/**
+ * The tiles, nodes and voxels of a validated tree, walked with PNanoVDB's C
+ * API from the root, one group of coordinates each (Groups::block), by level:
+ *  [0] every root tile, at the block of its key (child or not);
+ *  [1] per upper node: each child and active tile (128^3), and its first and
+ *      last entry;
+ *  [2] per lower node: the same (8^3);
+ *  [3] per leaf: its block, up to 4 active voxels (first, last, two between)
+ *      and its stored bbox_min (NanoVDB's is the first active voxel's
+ *      corner: the origin is bbox_min & ~7) where that is not its origin.
+ * Origins come from the path (key, then table index), as a lookup finds
+ * them, not from the nodes' bboxes. A child reached twice is walked twice.
+ */
+template <uint32_t T>
+std::array<Groups, 4> walk_tree(const nio::ValidatedGrid &grid) {
+    pnanovdb_buf_t pbuf;
+    pbuf.data = const_cast<uint32_t *>(grid.words());
+    const pnanovdb_root_handle_t proot = { uint64_t(grid.summary().root_word) * 4 };
+    std::array<Groups, 4> g;
+    std::vector<std::pair<pnanovdb_upper_handle_t, Coord3>> uppers;
+    std::vector<std::pair<pnanovdb_lower_handle_t, Coord3>> lowers;
+    std::vector<std::pair<pnanovdb_leaf_handle_t, Coord3>> leaves;
+
+    const uint32_t tiles = pnanovdb_root_get_tile_count(pbuf, proot);
+    for (uint32_t t = 0; t < tiles && g[0].size() < MAX_GROUPS; ++t) {
+        const pnanovdb_root_tile_handle_t tile = pnanovdb_root_get_tile(T, proot, t);
+        // coord_to_key: 20 bits of ijk >> 12 per 21-bit field (validated)
+        const uint64_t key = pnanovdb_root_tile_get_key(pbuf, tile);
+        const Coord3 o = offset({ 0, 0, 0 }, uint32_t(key >> 42) & 0x1FFFFFu,
+                                uint32_t(key >> 21) & 0x1FFFFFu, uint32_t(key) & 0x1FFFFFu, 4096u);
+        g[0].block(o, 4096);
+        if (pnanovdb_root_tile_get_child(pbuf, tile) != 0 && uppers.size() < MAX_UPPERS)
+            uppers.push_back({ pnanovdb_root_get_child(T, pbuf, proot, tile), o });
+    }
+    // An internal node's entries: children and active tiles, and its corners
+    auto entries = [&](pnanovdb_address_t node, uint32_t value_mask_off, uint32_t child_mask_off,
+                       uint32_t log2_dim, uint32_t child_extent, const Coord3 &o, Groups &out,
+                       auto &&child) {
+        const uint32_t count = 1u << (3 * log2_dim), dim_mask = (1u << log2_dim) - 1u;
+        auto at = [&](uint32_t n) {
+            return offset(o, n >> (2 * log2_dim), (n >> log2_dim) & dim_mask, n & dim_mask,
+                          child_extent);
+        };
+        for (uint32_t w = 0; w < count / 32; ++w) {
+            const uint32_t value = pnanovdb_read_uint32(
+                pbuf, pnanovdb_address_offset(node, value_mask_off + 4 * w));
+            const uint32_t kids = pnanovdb_read_uint32(
+                pbuf, pnanovdb_address_offset(node, child_mask_off + 4 * w));
+            uint32_t bits = value | kids;
+            if (w == 0) bits |= 1u;                   // first entry
+            if (w == count / 32 - 1) bits |= 1u << 31; // last entry
+            for (; bits && out.size() < MAX_GROUPS; bits &= bits - 1) {
+                const uint32_t n = 32 * w + uint32_t(__builtin_ctz(bits));
+                out.block(at(n), child_extent);
+                if (kids >> (n & 31) & 1u) child(n, at(n));
+            }
+        }
+    };
+    for (const auto &u : uppers)
+        entries(u.first.address, PNANOVDB_UPPER_OFF_VALUE_MASK, PNANOVDB_UPPER_OFF_CHILD_MASK, 5,
+                128, u.second, g[1], [&](uint32_t n, const Coord3 &c) {
+                    if (lowers.size() < MAX_LOWERS)
+                        lowers.push_back({ pnanovdb_upper_get_child(T, pbuf, u.first, n), c });
+                });
+    for (const auto &l : lowers)
+        entries(l.first.address, PNANOVDB_LOWER_OFF_VALUE_MASK, PNANOVDB_LOWER_OFF_CHILD_MASK, 4,
+                8, l.second, g[2], [&](uint32_t n, const Coord3 &c) {
+                    if (leaves.size() < MAX_LEAVES)
+                        leaves.push_back({ pnanovdb_lower_get_child(T, pbuf, l.first, n), c });
+                });
+    for (const auto &lf : leaves) {
+        if (g[3].size() >= MAX_GROUPS) break;
+        const pnanovdb_leaf_handle_t leaf = lf.first;
+        const Coord3 &o = lf.second;
+        g[3].block(o, 8);
+        // Active voxels: the first, the last and two between, by rank
+        uint32_t mask[16], active = 0;
+        for (uint32_t w = 0; w < 16; ++w) {
+            mask[w] = pnanovdb_read_uint32(
+                pbuf, pnanovdb_address_offset(leaf.address, PNANOVDB_LEAF_OFF_VALUE_MASK + 4 * w));
+            active += uint32_t(__builtin_popcount(mask[w]));
+        }
+        for (uint32_t n = 0, rank = 0; n < 512 && rank < active; ++n) {
+            if (!(mask[n >> 5] >> (n & 31) & 1u)) continue;
+            if (rank == 0 || rank == active / 3 || rank == 2 * active / 3 || rank == active - 1)
+                g[3].coords.push_back(offset(o, n >> 6, (n >> 3) & 7, n & 7, 1));
+            ++rank;
+        }
+        const pnanovdb_coord_t b = pnanovdb_leaf_get_bbox_min(pbuf, leaf);
+        if (b.x != o[0] || b.y != o[1] || b.z != o[2])
+            g[3].coords.push_back({ b.x, b.y, b.z });
+    }
+    return g;
+}
+
+/**
+ * At most `budget` coordinates of the walk, in whole groups: each level gets
+ * an equal share of what the levels before it left; a level with more
+ * groups than its share gets evenly spaced ones, from an input-dependent
+ * start (`salt`), so that the fuzzer reaches every group of a large grid
+ * across inputs.
+ */
+std::vector<Coord3> sample(const std::array<Groups, 4> &g, size_t budget, uint32_t salt) {
+    std::vector<Coord3> out;
+    for (size_t level = 0; level < 4; ++level) {
+        const Groups &l = g[level];
+        const size_t share = (budget - out.size()) / (4 - level), first = out.size();
+        if (l.coords.size() <= share) {
+            out.insert(out.end(), l.coords.begin(), l.coords.end());
+            continue;
+        }
+        const size_t n = l.size(), per = (l.coords.size() + n - 1) / n; // coords per group, at most
+        const size_t m = std::max<size_t>(1, share / per), step = std::max<size_t>(1, n / m);
+        for (size_t i = salt % step; i < n; i += step) {
+            const size_t b = l.begin[i], e = i + 1 < n ? l.begin[i + 1] : l.coords.size();
+            if (out.size() - first + (e - b) > share) break;
+            out.insert(out.end(), l.coords.begin() + b, l.coords.begin() + e);
+        }
+    }
+    return out;
+}
+
+/// What one reader finds at a coordinate
+struct Read {
+    uint32_t address = 0, level = 0; ///< word address, PNanoVDB's level (0 leaf .. 4 background)
+    std::array<uint32_t, 3> value{}; ///< as translation_value()
+};
+
+/// Every coordinate, through the reader a plan selects (its buffer and root handle)
+template <uint32_t T>
+std::vector<Read> read_all(const nio::ReaderPlan &plan, const uint32_t *words,
+                           const std::vector<Coord3> &coords) {
+    std::vector<Read> out(coords.size());
+    ndr::Reader<uint32_t>::from_plan(plan).apply(words, [&](const auto &b, const auto &root) {
+        for (size_t i = 0; i < coords.size(); ++i) {
+            const Coord3 &c = coords[i];
+            ndr::Coord<uint32_t> ijk(c[0], c[1], c[2]);
+            ndr::AddressAndLevel<uint32_t> al =
+                ndr::root_get_value_address_and_level<T>(b, root, ijk, true);
+            out[i] = { al.address, al.level, translation_value<T>(b, al.address, al.level, ijk) };
+        }
+    });
+    return out;
+}
+
+/// die() with the coordinate and what the two sides read there
+[[noreturn]] void die_at(const char *what, const Coord3 &c, const char *a_name, const Read &a,
+                         const char *b_name, const Read &b) {
+    char msg[512];
+    std::snprintf(msg, sizeof msg,
+                  "%s at (%d, %d, %d): %s level %u, word %u, value bits %08x %08x %08x; "
+                  "%s level %u, word %u, value bits %08x %08x %08x; levels",
+                  what, c[0], c[1], c[2], a_name, a.level, a.address, a.value[0], a.value[1],
+                  a.value[2], b_name, b.level, b.address, b.value[0], b.value[1], b.value[2]);
+    die(msg, a.level, b.level);
+}
+
+/**
+ * The differential oracle: at every coordinate the tree touches (walk_tree,
+ * at most ~2000 a grid: fewer where many root tiles make each lookup slow),
+ * the fast reader (the plan's: CompactOffsets, IndexedRootHandle) and the
+ * faithful translation (plan.faithful()) find the same level, value address
+ * and value bits, and so does PNanoVDB.
+ */
+template <uint32_t T>
+void differential(const nio::DecodedGrid &decoded, const uint8_t *input, size_t input_size) {
+    const nio::ValidatedGrid &grid = decoded.grid;
+    // a lookup searches the root tiles linearly (faithful and PNanoVDB):
+    // bound coordinates x tiles
+    const size_t tiles = grid.summary().root_tile_count;
+    const size_t budget = std::clamp<size_t>((size_t(1) << 22) / (tiles + 1), 256, 2000);
+    uint32_t salt = 2166136261u ^ uint32_t(input_size); // FNV-1a of its first and last bytes
+    for (size_t i = 0; i < input_size; i = (i == 63 && input_size > 128) ? input_size - 64 : i + 1)
+        salt = (salt ^ input[i]) * 16777619u;
+    const std::vector<Coord3> coords = sample(walk_tree<T>(grid), budget, salt);
+
+    const uint32_t *words = grid.words();
+    const uint64_t word_count = (grid.bytes() + 3) / 4;
+    const std::vector<Read> fast = read_all<T>(decoded.plan, words, coords);
+    const std::vector<Read> faithful = read_all<T>(decoded.plan.faithful(), words, coords);
+
+    pnanovdb_buf_t pbuf;
+    pbuf.data = const_cast<uint32_t *>(words);
+    const pnanovdb_root_handle_t proot = { uint64_t(grid.summary().root_word) * 4 };
+    for (size_t i = 0; i < coords.size(); ++i) {
+        const Coord3 &c = coords[i];
+        if (fast[i].address >= word_count || faithful[i].address >= word_count)
+            die_at("differential: value address outside the buffer", c, "fast", fast[i],
+                   "faithful", faithful[i]);
+        if (fast[i].level != faithful[i].level || fast[i].address != faithful[i].address ||
+            fast[i].value != faithful[i].value)
+            die_at("differential: fast reader and faithful translation disagree", c, "fast",
+                   fast[i], "faithful", faithful[i]);
+        // ... and both read as PNanoVDB (the fast one through the faithful one)
+        pnanovdb_coord_t pijk = { c[0], c[1], c[2] };
+        pnanovdb_uint32_t plevel = 0;
+        const pnanovdb_address_t paddr =
+            pnanovdb_root_get_value_address_and_level(T, pbuf, proot, &pijk, &plevel);
+        Read p;
+        p.address = uint32_t(paddr.byte_offset >> 2); // Half: the word of a 2-byte value
+        p.level = plevel;
+        p.value = pnanovdb_value<T>(pbuf, paddr, &pijk, plevel);
+        if (faithful[i].level != p.level || faithful[i].address != p.address ||
+            faithful[i].value != p.value)
+            die_at("differential: the translation and PNanoVDB disagree", c, "faithful",
+                   faithful[i], "PNanoVDB", p);
+    }
+}
+
 } // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
@@ -255,6 +516,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
                 });
             });
         }
+        // The differential oracle, at the coordinates the tree touches
+        with_type(decoded->grid.summary().grid_type, [&](auto type) {
+            differential<decltype(type)::value>(*decoded, data, size);
+        });
     } catch (const nio::Error &) {
         // the only failure allowed: a clear error
     }

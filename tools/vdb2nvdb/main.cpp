@@ -12,11 +12,20 @@
 
 #include <openvdb/openvdb.h>
 
+#include <csignal>
+#include <filesystem>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include "convert.h"
 #include "describe.h"
 #include "generate.h"
+#include "format.h"
 #include "temp_file.h"
 #include "testdata/generate_cases.h"
+
+extern char **environ;
 
 using namespace vdb2nvdb;
 
@@ -262,9 +271,7 @@ int run(int argc, char **argv) {
     return convert_file(positional[0], positional[1], opts);
 }
 
-} // namespace
-
-int main(int argc, char **argv) {
+int work(int argc, char **argv) {
     install_signal_handlers();
     try {
         openvdb::initialize();
@@ -282,4 +289,64 @@ int main(int argc, char **argv) {
         std::fprintf(stderr, "vdb2nvdb: error: %s\n", e.what());
         return ExitError;
     }
+}
+
+// The work runs in a child process: this program started again, with
+// NVDB_VDB2NVDB_IN_PROCESS=1. OpenVDB's reader trusts its stream, and a
+// damaged file can corrupt the heap (src/loader/vdb_import.cpp). A crash
+// then ends the child, which removes its temporary outputs (temp_file.cpp),
+// and this process says what happened, instead of an abort in glibc's
+// words. (A fresh process, not fork(): OpenVDB's logging library starts a
+// thread when it is loaded, which a forked child would lack, and wait for
+// at exit.)
+volatile std::sig_atomic_t g_child = 0;
+
+extern "C" void forward_signal(int sig) {
+    if (g_child > 0)
+        ::kill(pid_t(g_child), sig);
+}
+
+/// The input named on the command line: its first existing file
+std::string input_name(int argc, char **argv) {
+    std::error_code ec;
+    for (int i = 1; i < argc; ++i)
+        if (argv[i][0] != '-' && std::filesystem::is_regular_file(argv[i], ec))
+            return argv[i];
+    return "the input";
+}
+
+} // namespace
+
+int main(int argc, char **argv) {
+    // (NVDB_VDB2NVDB_IN_PROCESS=1: the child; set by hand, no child, for debuggers)
+    const char *in_process = std::getenv("NVDB_VDB2NVDB_IN_PROCESS");
+    if (in_process && std::string(in_process) == "1")
+        return work(argc, argv);
+    std::fflush(nullptr);
+    pid_t pid = -1;
+    ::setenv("NVDB_VDB2NVDB_IN_PROCESS", "1", 1);
+    if (::posix_spawn(&pid, "/proc/self/exe", nullptr, nullptr, argv, environ) != 0) {
+        ::unsetenv("NVDB_VDB2NVDB_IN_PROCESS");
+        return work(argc, argv); // (no /proc: in this process)
+    }
+    g_child = pid;
+    for (int sig : { SIGINT, SIGTERM, SIGHUP })
+        std::signal(sig, forward_signal);
+    int status = 0;
+    while (::waitpid(pid, &status, 0) < 0)
+        if (errno != EINTR)
+            return ExitError;
+    if (WIFEXITED(status))
+        return WEXITSTATUS(status);
+    const int sig = WTERMSIG(status);
+    if (sig == SIGINT || sig == SIGTERM || sig == SIGHUP) {
+        std::signal(sig, SIG_DFL);
+        std::raise(sig);
+    }
+    const char *abbrev = sigabbrev_np(sig);
+    std::fprintf(stderr,
+                 "vdb2nvdb: error: %s: damaged: OpenVDB's reader crashed on it (SIG%s); no "
+                 "output was written\n",
+                 dq(input_name(argc, argv)).c_str(), abbrev ? abbrev : "?");
+    return ExitError;
 }

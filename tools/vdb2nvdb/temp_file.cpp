@@ -38,6 +38,10 @@ void install_signal_handlers() {
     std::signal(SIGINT, on_fatal_signal);
     std::signal(SIGTERM, on_fatal_signal);
     std::signal(SIGHUP, on_fatal_signal);
+    // A crash (a damaged .vdb can crash OpenVDB's reader) leaves no
+    // temporary file either; the parent process reports it (main.cpp)
+    for (int sig : { SIGSEGV, SIGBUS, SIGABRT, SIGFPE, SIGILL })
+        std::signal(sig, on_fatal_signal);
 }
 
 TempFile::TempFile(const std::string &path) : m_path(path) {

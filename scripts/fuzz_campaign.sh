@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# The fuzz campaign (issue 32), off CI: runs each libFuzzer target for
+# SECONDS (default 3600) on one core, niced, resumed from its corpus, and
+# records the run in tests/fuzz/CAMPAIGN.md (executions, coverage, features,
+# corpus, findings). New coverage is merged into the committed, minimized
+# corpus (tests/fuzz/corpus/<target>/); findings are kept under
+# build-fuzz/campaign/<target>/findings/ to triage: each is fixed in our
+# code or shown to be contained by the reader's process, and its
+# reproducer goes into tests/data/vdb_crashers/ (tests/test_vdb_damaged.py)
+# or the .nvdb tests.
+#   scripts/fuzz_campaign.sh [SECONDS] [TARGET...]      (targets: nvdb vdb)
+# Needs the fuzz build (scripts/test.sh makes it: build-fuzz/bin/fuzz_*).
+# The run goes on in fork mode past a crash (-ignore_crashes), so one
+# finding does not end the hour.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+seconds=${1:-3600}
+shift || true
+targets=("$@")
+[ ${#targets[@]} -gt 0 ] || targets=(nvdb vdb)
+shared="${NVDB_SHARED_DATA:-../shared/data}"
+log=tests/fuzz/CAMPAIGN.md
+for t in "${targets[@]}"; do
+  bin=build-fuzz/bin/fuzz_$t
+  [ -x "$bin" ] || { echo "fuzz_campaign: $bin is missing: run scripts/test.sh first" >&2; exit 2; }
+  work=build-fuzz/campaign/$t
+  mkdir -p "$work/corpus" "$work/findings" "tests/fuzz/corpus/$t"
+  seeds=(tests/fuzz/corpus/$t build-fuzz/seeds)
+  [ "$t" = vdb ] && seeds=(tests/fuzz/corpus/$t build-fuzz/seeds-vdb)
+  [ -d "$shared" ] && seeds+=("$shared")
+  echo "== fuzz_$t for ${seconds} s"
+  start=$(date -u +%Y-%m-%dT%H:%MZ)
+  nice -n 10 "$bin" -fork=1 -ignore_crashes=1 -ignore_ooms=1 -ignore_timeouts=1 \
+    -timeout=30 -rss_limit_mb=2048 -max_total_time="$seconds" \
+    -artifact_prefix="$work/findings/" "$work/corpus" "${seeds[@]}" > "$work/last.log" 2>&1 || true
+  # fork mode's status lines: "#EXECS: cov: C ft: F corp: N exec/s: E oom/timeout/crash: a/b/c ..."
+  last=$(grep -E '^#[0-9]+: cov:' "$work/last.log" | tail -n 1 || true)
+  execs=$(sed -E 's/^#([0-9]+):.*/\1/' <<<"$last")
+  cov=$(sed -E 's/.* cov: ([0-9]+).*/\1/' <<<"$last")
+  ft=$(sed -E 's/.* ft: ([0-9]+).*/\1/' <<<"$last")
+  otc=$(sed -E 's#.*oom/timeout/crash: ([0-9/]+).*#\1#' <<<"$last")
+  # the committed corpus: only inputs that add coverage (-merge=1)
+  "$bin" -merge=1 "tests/fuzz/corpus/$t" "$work/corpus" > "$work/merge.log" 2>&1 || true
+  files=$(ls "tests/fuzz/corpus/$t" | wc -l)
+  kb=$(du -sk "tests/fuzz/corpus/$t" | cut -f1)
+  findings=$(ls "$work/findings" | wc -l)
+  [ -f "$log" ] || printf '# Fuzz campaign\n\nOne row per run of `scripts/fuzz_campaign.sh` (one core, niced). Executions, coverage (edges) and features are libFuzzer'"'"'s final status line; oom/timeout/crash its counts; findings the artifacts kept.\n\n| start (UTC) | target | seconds | executions | cov | ft | oom/timeout/crash | findings | corpus files (KiB) |\n|---|---|---|---|---|---|---|---|---|\n' > "$log"
+  echo "| $start | fuzz_$t | $seconds | ${execs:-?} | ${cov:-?} | ${ft:-?} | ${otc:-?} | $findings | $files ($kb) |" >> "$log"
+  tail -n 1 "$log"
+done

@@ -1,0 +1,283 @@
+// An OpenVDB file's grid as NanoVDB bytes, read and converted in this
+// process (src/loader/vdb_read.h). Only nanovdb-vdb-reader
+// (src/loader/vdb_reader_main.cpp) and the fuzzer (tests/fuzz/fuzz_vdb.cpp)
+// run it: OpenVDB trusts its stream, so nanovdbvolume reads a .vdb through
+// that separate process (src/loader/vdb_import.cpp says why).
+// The conversion is vdb2nvdb's own (tools/vdb2nvdb: prepare.h, to_nano.h),
+// linked as the vdb2nvdb_convert library, so the plugin and the converter
+// cannot drift apart.
+
+#include "vdb_read.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <mutex>
+#include <vector>
+
+#include <openvdb/io/Archive.h>
+#include <openvdb/io/GridDescriptor.h>
+#include <openvdb/openvdb.h>
+
+#include "../../tools/vdb2nvdb/error.h"
+#include "../../tools/vdb2nvdb/format.h"
+#include "../../tools/vdb2nvdb/prepare.h"
+#include "../../tools/vdb2nvdb/to_nano.h"
+
+namespace nanovdb_loader {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double since(Clock::time_point t0) {
+    return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+/// Whether a grid of this type converts (float, vec3s)
+bool convertible(const openvdb::GridBase &g) {
+    return g.isType<openvdb::FloatGrid>() || g.isType<openvdb::Vec3SGrid>();
+}
+
+/**
+ * A .vdb file read as openvdb::io::File reads one grid (the header, the
+ * grid descriptors, then one grid by its offsets), with the checks File
+ * leaves out: every descriptor's offsets lie inside the file, and the grid's
+ * read ends inside its own bytes with the stream intact. (File reads a grid
+ * cut off by a truncated file as short buffers, silently.) Archive's
+ * protected steps do the reading; nothing of the format is parsed here.
+ */
+class CheckedVdbFile final : public openvdb::io::Archive {
+public:
+    struct Grid {
+        openvdb::io::GridDescriptor descriptor;
+        openvdb::GridBase::Ptr grid; ///< its metadata only, until read()
+    };
+
+    CheckedVdbFile(const std::string &path, const std::string &label)
+        : m_label(label), m_is(path, std::ios::binary) {
+        if (!m_is)
+            throw Error(label + ": cannot open: " + std::strerror(errno));
+        m_size = (int64_t) fs::file_size(path);
+        readHeader(m_is);
+        // Tagged as io::File tags its stream (the grids' readers expect it)
+        m_meta = std::make_shared<openvdb::io::StreamMetadata>();
+        m_meta->setSeekable(true);
+        openvdb::io::setStreamMetadataPtr(m_is, m_meta, /*transfer=*/false);
+        setFormatVersion(m_is);
+        setLibraryVersion(m_is);
+        setDataCompression(m_is);
+        openvdb::MetaMap file_meta;
+        file_meta.readMeta(m_is);
+        if (!inputHasGridOffsets())
+            throw Error(label + ": an OpenVDB stream without grid offsets (written by "
+                        "io::Stream): convert it with vdb2nvdb");
+        int32_t count = readGridCount(m_is);
+        if (!m_is || count < 0 || count > (1 << 20))
+            throw Error(label + ": cannot read as an OpenVDB file: bad grid count");
+        for (int32_t i = 0; i < count; ++i) {
+            Grid g;
+            g.grid = g.descriptor.read(m_is);
+            const openvdb::io::GridDescriptor &d = g.descriptor;
+            if (!m_is || !(0 < d.getGridPos() && d.getGridPos() <= d.getBlockPos() &&
+                           d.getBlockPos() <= d.getEndPos()))
+                throw Error(label + ": cannot read as an OpenVDB file: grid " +
+                            std::to_string(i) + "'s offsets are invalid");
+            if (d.getEndPos() > m_size)
+                throw Error(label + ": truncated: grid \"" + d.gridName() + "\" ends at byte " +
+                            std::to_string(d.getEndPos()) + ", the file has " +
+                            std::to_string(m_size));
+            // Its metadata (name, class), as File::readAllGridMetadata
+            d.seekToGrid(m_is);
+            readGridCompression(m_is);
+            g.grid->readMeta(m_is);
+            g.grid->setName(d.gridName());
+            if (!m_is)
+                throw Error(label + ": cannot read as an OpenVDB file: grid \"" + d.gridName() +
+                            "\"'s metadata");
+            d.seekToEnd(m_is);
+            m_grids.push_back(std::move(g));
+        }
+    }
+
+    openvdb::GridPtrVec metadata() const {
+        openvdb::GridPtrVec out;
+        for (const Grid &g : m_grids)
+            out.push_back(g.grid);
+        return out;
+    }
+
+    /// Grid i, whole (an instance: its parent's tree, as File reads it)
+    openvdb::GridBase::Ptr read(size_t i) {
+        const openvdb::io::GridDescriptor &d = m_grids[i].descriptor;
+        openvdb::GridBase::Ptr grid = read_one(d);
+        if (d.isInstance()) {
+            size_t parent = m_grids.size();
+            for (size_t k = 0; k < m_grids.size(); ++k)
+                if (m_grids[k].descriptor.uniqueName() == d.instanceParentName())
+                    parent = k;
+            if (parent == m_grids.size())
+                throw Error(m_label + ": grid \"" + d.gridName() + "\" is an instance of \"" +
+                            d.instanceParentName() + "\", which the file does not hold");
+            grid->setTree(read_one(m_grids[parent].descriptor)->baseTreePtr());
+        }
+        return grid;
+    }
+
+private:
+    /**
+     * The counts at the top of a grid's tree, checked against the bytes the
+     * grid spans before OpenVDB reads them. RootNode::readTopology loops
+     * over the tile and child counts it reads, inserting or allocating for
+     * each, without a check: a damaged count of 4e9 tiles would loop for
+     * minutes, and one of 4e9 children allocates 270 KB each. Each tile
+     * takes at least its origin, value and active flag in the file, and
+     * each child its origin and two 4096-byte masks, so counts that need
+     * more bytes than the grid has are damage, refused here.
+     */
+    void check_root_counts(const openvdb::io::GridDescriptor &d) {
+        const uint32_t version = openvdb::io::getFormatVersion(m_is);
+        if (version < openvdb::OPENVDB_FILE_VERSION_GRID_INSTANCING || d.isInstance())
+            return; // (the topology comes after the transform from 216 on)
+        d.seekToGrid(m_is);
+        readGridCompression(m_is);
+        openvdb::GridBase::Ptr probe = openvdb::GridBase::createGrid(d.gridType());
+        probe->readMeta(m_is);
+        probe->readTransform(m_is);
+        const uint64_t value_bytes = probe->isType<openvdb::Vec3SGrid>() ? 12 : 4;
+        int32_t buffer_count = 0;
+        uint32_t tiles = 0, children = 0;
+        std::vector<char> background(value_bytes);
+        m_is.read(reinterpret_cast<char *>(&buffer_count), 4);
+        m_is.read(background.data(), std::streamsize(value_bytes));
+        m_is.read(reinterpret_cast<char *>(&tiles), 4);
+        m_is.read(reinterpret_cast<char *>(&children), 4);
+        if (!m_is)
+            throw Error(m_label + ": damaged: grid \"" + d.gridName() +
+                        "\" ends inside its header");
+        const int64_t left = d.getEndPos() - int64_t(m_is.tellg());
+        const uint64_t need = uint64_t(tiles) * (12 + value_bytes + 1) +
+                              uint64_t(children) * (12 + 2 * 4096);
+        if (left < 0 || need > uint64_t(left))
+            throw Error(m_label + ": damaged: grid \"" + d.gridName() + "\"'s root declares " +
+                        std::to_string(tiles) + " tiles and " + std::to_string(children) +
+                        " child nodes, which need at least " + std::to_string(need) +
+                        " bytes; the grid has " + std::to_string(std::max<int64_t>(left, 0)));
+    }
+
+    openvdb::GridBase::Ptr read_one(const openvdb::io::GridDescriptor &d) {
+        check_root_counts(d);
+        openvdb::GridBase::Ptr grid = openvdb::GridBase::createGrid(d.gridType());
+        grid->setSaveFloatAsHalf(d.saveFloatAsHalf());
+        d.seekToGrid(m_is);
+        Archive::readGrid(grid, d, m_is);
+        if (!m_is || (int64_t) m_is.tellg() > d.getEndPos())
+            throw Error(m_label + ": grid \"" + d.gridName() + "\" is corrupt or truncated: "
+                        "its data runs past its end in the file");
+        return grid;
+    }
+
+    std::string m_label;
+    std::ifstream m_is;
+    openvdb::io::StreamMetadata::Ptr m_meta;
+    int64_t m_size = 0;
+    std::vector<Grid> m_grids;
+};
+
+/// The grid `selector` names among `meta` (metadata only): vdb2nvdb's and
+/// the .nvdb files' rule, a name first, then an index, "" the first
+/// convertible grid
+size_t choose(const std::string &label, const openvdb::GridPtrVec &meta,
+              const std::string &selector) {
+    if (selector.empty()) {
+        for (size_t i = 0; i < meta.size(); ++i)
+            if (convertible(*meta[i]))
+                return i;
+        throw Error(label + ": no float or vec3s grid; the file holds: " +
+                    vdb2nvdb::list_grids(meta));
+    }
+    for (size_t i = 0; i < meta.size(); ++i)
+        if (meta[i]->getName() == selector)
+            return i;
+    if (std::all_of(selector.begin(), selector.end(),
+                    [](unsigned char c) { return std::isdigit(c); }) && selector.size() < 10) {
+        size_t i = std::stoull(selector);
+        if (i < meta.size())
+            return i;
+    }
+    throw Error(label + ": no grid named \"" + selector + "\"; the file holds: " +
+                vdb2nvdb::list_grids(meta));
+}
+
+} // namespace
+
+VdbGrid read_vdb_grid(const std::string &path, const std::string &selector) {
+    static std::once_flag once;
+    std::call_once(once, [] { openvdb::initialize(); });
+    const std::string label = "\"" + path + "\"";
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec))
+        throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
+    VdbGrid out;
+    auto t0 = Clock::now();
+    openvdb::GridBase::Ptr grid;
+    try {
+        // The grids' metadata (no voxels), to choose one, then that grid alone
+        CheckedVdbFile file(path, label);
+        openvdb::GridPtrVec meta = file.metadata();
+        if (meta.empty())
+            throw Error(label + ": an OpenVDB file without grids");
+        size_t i = choose(label, meta, selector);
+        if (!convertible(*meta[i]))
+            throw Error(label + ": grid " + vdb2nvdb::grid_summary(*meta[i]) +
+                        " cannot be read: only float and vec3s grids are supported (points, "
+                        "integer and double grids are not)");
+        out.index = uint32_t(i);
+        grid = file.read(i);
+        grid->setName(meta[i]->getName());
+    } catch (const Error &) {
+        throw;
+    } catch (const std::exception &e) {
+        throw Error(label + ": cannot read as an OpenVDB file (corrupt or truncated?): " +
+                    e.what());
+    }
+    out.read_seconds = since(t0);
+    t0 = Clock::now();
+    const std::string name = grid->getName();
+    try {
+        vdb2nvdb::Handle h;
+        { // (the OpenVDB grid is freed at the end of this scope, before the copy)
+            openvdb::GridPtrVec one{ std::move(grid) };
+            vdb2nvdb::Options opts;
+            opts.grids = { name };
+            std::vector<vdb2nvdb::Prepared> prepared =
+                vdb2nvdb::select_and_prepare(one, label, opts);
+            const vdb2nvdb::Prepared &p = prepared.front();
+            out.name = p.name;
+            out.source_class = uint32_t(p.source_class);
+            out.fogged = p.fogged;
+            h = p.grid ? vdb2nvdb::convert_one(*p.grid, vdb2nvdb::Quantize::Float, opts)
+                       : vdb2nvdb::convert_vec3(*p.vec);
+        }
+        // The handle itself is kept (no copy): the plugin copies it once,
+        // into the block its backend owns
+        out.size = h.size();
+        auto owner = std::make_shared<vdb2nvdb::Handle>(std::move(h));
+        out.data = std::shared_ptr<const uint8_t>(owner, owner->data());
+    } catch (const vdb2nvdb::Error &e) { // (its messages start with the label)
+        throw Error(e.what());
+    } catch (const std::exception &e) {
+        throw Error(label + ": cannot convert grid \"" + name + "\": " + e.what());
+    }
+    out.convert_seconds = since(t0);
+    return out;
+}
+
+} // namespace nanovdb_loader

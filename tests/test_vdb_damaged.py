@@ -1,0 +1,220 @@
+"""
+Damaged and hostile .vdb files never crash, hang or blow up the process
+that loads them (issue 32; src/loader/vdb_import.cpp: the file is read in
+a process of its own, nanovdb-vdb-reader, under a memory budget and a
+deadline):
+
+- test01: 120 mutated files (1-19 random bytes changed, seeded), from every
+  shared .vdb and two generated ones, loaded one after another through the
+  plugin in one Mitsuba process: each loads or is refused with an error
+  that names the file; the process survives; no load takes long; the
+  readers' peak memory stays a small multiple of the intact files' peak.
+- test02-04: hostile sizes, each refused with "damaged" before OpenVDB
+  allocates for it: a root that declares 2^31 child nodes or 2^32-1
+  tiles (a grid claiming ~10^12 voxels), a compressed chunk that claims
+  1 GiB, and one that claims to be stored raw at 1 GiB (OpenVDB would read
+  it over a 2 KB leaf: the crash stays in the reader).
+- test05: the fuzzers' reproducers (tests/data/vdb_crashers/), each a
+  clear error.
+- test06: vdb2nvdb on the same files: an error, never an abort.
+"""
+
+import json
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import BUILD, ROOT, SHARED_DATA
+
+VDB2NVDB = BUILD / "bin" / "vdb2nvdb"
+CHILD = Path(__file__).resolve().parent / "load_files_child.py"
+CRASHERS = Path(__file__).resolve().parent / "data" / "vdb_crashers"
+MUTANTS = 120
+SEED = 32
+
+
+def generate(case, out):
+    subprocess.run([str(VDB2NVDB), "generate", case, str(out)], check=True,
+                   capture_output=True)
+    return out
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory):
+    """The intact files: every shared .vdb (in place) and two generated
+    ones (so the test runs without ../shared too)"""
+    d = tmp_path_factory.mktemp("vdb_sources")
+    files = [generate("multi", d / "multi.vdb"), generate("cloud_48", d / "cloud.vdb")]
+    if SHARED_DATA.is_dir():
+        files += sorted(SHARED_DATA.glob("*.vdb"))
+    return files
+
+
+def load_in_child(paths, timeout=600):
+    """Loads every path through nanovdbvolume in one child Mitsuba process
+    (tests/load_files_child.py); returns its rows and its peak"""
+    r = subprocess.run([sys.executable, str(CHILD), str(BUILD), "scalar_rgb",
+                        *map(str, paths)], capture_output=True, text=True, timeout=timeout)
+    assert r.returncode == 0, (
+        f"the Mitsuba process that loaded the files died (exit {r.returncode}): "
+        f"{r.stderr[-2000:]}")
+    lines = [json.loads(l) for l in r.stdout.splitlines() if l.startswith("{")]
+    return lines[:-1], lines[-1]["self_peak_mb"]
+
+
+def check_refused_or_loaded(rows):
+    for row in rows:
+        name = Path(row["file"]).name
+        assert row["ok"] or name in row["error"], f"{name}: an error without the file: {row}"
+
+
+def test01_mutated_files_load_or_are_refused(sources, tmp_path):
+    rng = np.random.default_rng(SEED)
+    mutants = []
+    per_source = -(-MUTANTS // len(sources))
+    for src in sources:
+        data = np.frombuffer(src.read_bytes(), dtype=np.uint8)
+        for k in range(per_source):
+            m = data.copy()
+            n = int(rng.integers(1, 20))
+            m[rng.integers(0, len(m), n)] = rng.integers(0, 256, n, dtype=np.uint8)
+            out = tmp_path / f"{src.stem}.m{k:02d}.vdb"
+            out.write_bytes(m.tobytes())
+            mutants.append(out)
+    assert len(mutants) >= 100
+
+    intact, _ = load_in_child(sources)
+    rows, self_peak = load_in_child(mutants)
+    check_refused_or_loaded(rows)
+    intact_peak = max(r["reader_peak_mb"] for r in intact)
+    peak = max(r["reader_peak_mb"] for r in rows)
+    slowest = max(rows, key=lambda r: r["seconds"])
+    loaded = sum(r["ok"] for r in rows)
+    print(f"{len(rows)} mutated files: {loaded} loaded, {len(rows) - loaded} refused, 0 "
+          f"crashed; readers' peak {peak:.0f} MB (intact files {intact_peak:.0f} MB, "
+          f"{peak / intact_peak:.1f}x); slowest {slowest['seconds']:.2f} s; the Mitsuba "
+          f"process's peak {self_peak:.0f} MB")
+    # No hang: the reader's deadline is 60 s, and no damaged file should
+    # come near it (the slowest intact shared file reads in ~0.1 s)
+    assert slowest["seconds"] < 20, slowest
+    # No runaway memory. The reader's budget for these files (at most
+    # 1.7 MB) is 64 MiB + 96x the file + 128 MiB for the rest
+    # (vdb_reader_budget.h), ~ 360 MB: a damaged file may use at most that,
+    # against 4.4-10 GB before the budget
+    assert peak < 512, f"a reader peaked at {peak:.0f} MB"
+
+
+def find_root_counts(data):
+    """Offsets of (numTiles, numChildren) of every tree root in a .vdb:
+    bufferCount 1, a float background 0, then two small counts and a first
+    origin aligned to 4096 (RootNode::writeTopology)"""
+    found = []
+    for i in range(0, len(data) - 32):
+        if data[i:i + 8] != b"\x01\x00\x00\x00\x00\x00\x00\x00":
+            continue
+        tiles, children = struct.unpack_from("<II", data, i + 8)
+        origin = struct.unpack_from("<iii", data, i + 16)
+        if 0 < tiles + children < 4096 and all(c % 4096 == 0 for c in origin):
+            found.append(i + 8)
+    return found
+
+
+def find_chunk_sizes(data):
+    """Offsets of the int64 size in front of each compressed chunk: a blosc
+    chunk (version byte 2, cbytes equal to the size) or a zlib stream"""
+    found = []
+    for i in range(0, len(data) - 24):
+        n = struct.unpack_from("<q", data, i)[0]
+        if not 16 <= n <= len(data):
+            continue
+        if data[i + 8] == 2 and struct.unpack_from("<I", data, i + 8 + 12)[0] == n:
+            found.append(i)
+        elif data[i + 8] == 0x78 and data[i + 9] in (0x01, 0x5E, 0x9C, 0xDA):
+            found.append(i)
+    return found
+
+
+@pytest.fixture(scope="module")
+def fog(tmp_path_factory):
+    return generate("cloud_48", tmp_path_factory.mktemp("fog") / "fog.vdb")
+
+
+@pytest.mark.parametrize("tiles,children", [(0, 2**31), (2**32 - 1, 0)])
+def test02_root_declaring_billions_of_nodes(fog, tmp_path, tiles, children):
+    data = bytearray(fog.read_bytes())
+    offsets = find_root_counts(data)
+    assert offsets, "no tree root found in the generated file"
+    struct.pack_into("<II", data, offsets[0], tiles, children)
+    bad = tmp_path / "huge_root.vdb"
+    bad.write_bytes(bytes(data))
+    rows, _ = load_in_child([bad], timeout=120)
+    assert not rows[0]["ok"]
+    assert "huge_root.vdb" in rows[0]["error"] and "damaged" in rows[0]["error"], rows[0]
+    assert "root declares" in rows[0]["error"], rows[0]
+    assert rows[0]["seconds"] < 10 and rows[0]["reader_peak_mb"] < 256, rows[0]
+
+
+def test03_chunk_claiming_a_gigabyte(fog, tmp_path):
+    data = bytearray(fog.read_bytes())
+    offsets = find_chunk_sizes(data)
+    assert offsets, "no compressed chunk found in the generated file"
+    struct.pack_into("<q", data, offsets[0], 1 << 30)
+    bad = tmp_path / "gig_chunk.vdb"
+    bad.write_bytes(bytes(data))
+    rows, _ = load_in_child([bad], timeout=120)
+    assert not rows[0]["ok"] and "gig_chunk.vdb" in rows[0]["error"], rows[0]
+    assert "damaged" in rows[0]["error"], rows[0]
+    assert rows[0]["seconds"] < 10 and rows[0]["reader_peak_mb"] < 256, rows[0]
+
+
+def test04_raw_chunk_larger_than_its_leaf(fog, tmp_path):
+    """A negative size means "stored raw": OpenVDB reads that many bytes
+    into the leaf's 2 KB buffer. Whatever that does to the reader, the
+    plugin's process gets an error that names the file"""
+    data = bytearray(fog.read_bytes())
+    offsets = find_chunk_sizes(data)
+    struct.pack_into("<q", data, offsets[len(offsets) // 2], -(1 << 30))
+    bad = tmp_path / "raw_chunk.vdb"
+    bad.write_bytes(bytes(data))
+    rows, _ = load_in_child([bad], timeout=120)
+    assert not rows[0]["ok"] and "raw_chunk.vdb" in rows[0]["error"], rows[0]
+    assert "damaged" in rows[0]["error"] or "corrupt" in rows[0]["error"], rows[0]
+
+
+def crashers():
+    files = sorted(CRASHERS.glob("*")) if CRASHERS.is_dir() else []
+    return [pytest.param(f, id=f.name) for f in files] or [pytest.param(None, id="none")]
+
+
+@pytest.mark.parametrize("crasher", crashers())
+def test05_fuzzer_reproducers(crasher, tmp_path):
+    if crasher is None:
+        pytest.skip(f"no reproducers in {CRASHERS}")
+    f = tmp_path / (crasher.name + ".vdb")
+    f.write_bytes(crasher.read_bytes())
+    rows, _ = load_in_child([f], timeout=120)
+    check_refused_or_loaded(rows)
+
+
+def test06_vdb2nvdb_reports_instead_of_aborting(fog, tmp_path):
+    data = bytearray(fog.read_bytes())
+    offsets = find_chunk_sizes(data)
+    cases = {}
+    for name, off, value in [("gig", offsets[0], 1 << 30),
+                             ("raw", offsets[len(offsets) // 2], -(1 << 30))]:
+        d = bytearray(data)
+        struct.pack_into("<q", d, off, value)
+        cases[name] = tmp_path / f"{name}.vdb"
+        cases[name].write_bytes(bytes(d))
+    for name, path in cases.items():
+        out = tmp_path / f"{name}.nvdb"
+        r = subprocess.run([str(VDB2NVDB), str(path), str(out)], capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 1, (name, r.returncode, r.stderr[-500:])
+        assert f"{name}.vdb" in r.stderr and "vdb2nvdb: error:" in r.stderr, r.stderr
+        assert not out.exists() and not list(tmp_path.glob(f".{name}.nvdb.tmp-*"))
