@@ -1,0 +1,76 @@
+"""
+Triage of fuzz_vdb's findings (issue 32): every crash is either in our code
+(a bug to fix: this script fails) or inside the third-party reading code
+(OpenVDB and the codecs it calls), which the plugin never runs in its own
+process: then the finding, loaded through nanovdbvolume, must come back as
+an error that names the file, with the Mitsuba process alive
+(tests/load_files_child.py).
+
+    python3 tests/fuzz/triage_vdb.py FUZZ_VDB_BINARY BUILD_DIR FINDING...
+
+For each finding: fuzz_vdb replays it alone; the innermost stack frame that
+is neither the C/C++ runtime nor a sanitizer interceptor names where it
+crashed. Prints one line per finding and exits 1 if any crash is ours or
+is not contained.
+"""
+import json
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+CHILD = HERE.parent / "load_files_child.py"
+THIRD_PARTY = ("libopenvdb", "libblosc", "libz.", "libtbb", "libImath", "libboost")
+RUNTIME = ("libc.so", "libstdc++", "libgcc_s", "libm.so", "__interceptor_", "__asan", "__sanitizer",
+           "__ubsan", "libclang_rt")
+FRAME = re.compile(r"^\s+#(\d+) 0x[0-9a-f]+ in (.*)$")
+
+
+def crash_site(fuzzer, finding):
+    """(where, first line of the report) of a replay; where is None if the
+    replay does not crash"""
+    r = subprocess.run([fuzzer, str(finding)], capture_output=True, text=True, timeout=300,
+                       errors="replace")
+    if r.returncode == 0:
+        return None, "no crash on replay"
+    report = r.stderr.splitlines()
+    head = next((l for l in report if "ERROR:" in l or "runtime error" in l), "crash")
+    for line in report:
+        m = FRAME.match(line)
+        if not m:
+            continue
+        text = m.group(2)
+        if any(k in text for k in RUNTIME):
+            continue
+        return ("third-party" if any(k in text for k in THIRD_PARTY) else "ours: " + text), head
+    return "unknown", head
+
+
+def main(fuzzer, build, findings):
+    bad = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for f in findings:
+            where, head = crash_site(fuzzer, f)
+            # the plugin's view of the same bytes
+            copy = Path(tmp) / (Path(f).name + ".vdb")
+            copy.write_bytes(Path(f).read_bytes())
+            r = subprocess.run([sys.executable, str(CHILD), build, "scalar_rgb", str(copy)],
+                               capture_output=True, text=True, timeout=600)
+            rows = [json.loads(l) for l in r.stdout.splitlines() if l.startswith('{"file"')]
+            contained = (r.returncode == 0 and rows and
+                         (rows[0]["ok"] or copy.name in rows[0]["error"]))
+            verdict = "ok" if contained and (where is None or where == "third-party") else "FAIL"
+            bad += verdict == "FAIL"
+            plugin = ("loaded" if rows and rows[0]["ok"] else
+                      (rows[0]["error"].split("nanovdbvolume: ")[-1][:160] if rows else
+                       f"the Mitsuba process died ({r.returncode})"))
+            print(f"{verdict}: {Path(f).name}: crash {where or 'none'} ({head.strip()[:120]}); "
+                  f"plugin: {plugin}")
+    print(f"{len(findings)} findings, {bad} not contained or in our code")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1], sys.argv[2], sys.argv[3:]))
