@@ -43,6 +43,10 @@ if {path!r}:
     p = mi.traverse(vol)
     out["grid_bytes"] = float(p["grid_bytes"])
     out["convert_seconds"] = float(p["vdb_convert_seconds"]) if p["vdb_imported"] else 0.0
+    # (since issue 32 the .vdb is read by nanovdb-vdb-reader, a process of
+    # its own: its time, start to reply, and its peak)
+    out["reader_seconds"] = float(p["vdb_reader_seconds"]) if "vdb_reader_seconds" in p else 0.0
+    out["reader_peak_mb"] = float(p["vdb_reader_peak_mb"]) if "vdb_reader_peak_mb" in p else 0.0
 out["peak_kb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 print(json.dumps(out))
 """
@@ -106,6 +110,8 @@ def main():
                     "convert_seconds": statistics.median(r["convert_seconds"] for r in runs),
                     "peak_mb": (statistics.median(r["peak_kb"] for r in runs) - base) / 1024,
                     "grid_mb": runs[0]["grid_bytes"] / 2**20,
+                    "reader_seconds": statistics.median(r["reader_seconds"] for r in runs),
+                    "reader_peak_mb": statistics.median(r["reader_peak_mb"] for r in runs),
                 }
             rows.append({"file": vdb.name, "grid": grid, "type": type_,
                          "vdb_bytes": vdb.stat().st_size, **result})
@@ -115,20 +121,21 @@ def main():
         f"{a.variant}, median of {a.repeat} fresh processes each; peak: ru_maxrss over a "
         f"process that loads nothing ({base / 1024:.0f} MB). Machine: "
         f"{os.cpu_count()} cores. Command: `python3 bench/vdb_load.py`.", "",
-        "| file | grid | grid MB | .nvdb load s | .vdb load s (read + convert) | time x | "
-        ".nvdb peak MB | .vdb peak MB | peak x |",
-        "|---|---|---|---|---|---|---|---|---|"]
+        "| file | grid | grid MB | .nvdb load s | .vdb load s (convert) | time x | "
+        ".nvdb peak MB | .vdb peak MB | peak x | reader process s | reader peak MB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         v, n = r.get("vdb", {}), r.get("nvdb", {})
         if "error" in v or "error" in n:
             lines.append(f"| {r['file']} | \"{r['grid']}\" | | refused: {v.get('error') or n.get('error')} "
-                         "| | | | | |")
+                         "| | | | | | | |")
             continue
         lines.append(
             f"| {r['file']} | \"{r['grid']}\" ({r['type']}) | {n['grid_mb']:.2f} | "
             f"{n['seconds']:.3f} | {v['seconds']:.3f} ({v['convert_seconds']:.3f}) | "
             f"{v['seconds'] / n['seconds']:.1f} | {n['peak_mb']:.1f} | {v['peak_mb']:.1f} | "
-            f"{v['peak_mb'] / max(n['peak_mb'], 1e-9):.1f} |")
+            f"{v['peak_mb'] / max(n['peak_mb'], 1e-9):.1f} | {v.get('reader_seconds', 0):.3f} | "
+            f"{v.get('reader_peak_mb', 0):.1f} |")
     Path(a.out).write_text("\n".join(lines) + "\n")
     Path(a.out).with_suffix(".json").write_text(json.dumps(rows, indent=1) + "\n")
     print("\n".join(lines))

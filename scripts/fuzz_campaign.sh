@@ -26,12 +26,16 @@ for t in "${targets[@]}"; do
   work=build-fuzz/campaign/$t
   mkdir -p "$work/corpus" "$work/findings" "tests/fuzz/corpus/$t"
   seeds=(tests/fuzz/corpus/$t build-fuzz/seeds)
-  [ "$t" = vdb ] && seeds=(tests/fuzz/corpus/$t build-fuzz/seeds-vdb)
+  max_len=2500000   # (the typed .nvdb seeds are up to 2.4 MB)
+  if [ "$t" = vdb ]; then
+    seeds=(tests/fuzz/corpus/$t build-fuzz/seeds-vdb)
+    max_len=131072  # (a 1.7 MB .vdb reads at a few per second; mutations of
+  fi                #  its first 128 KB reach its header, descriptors and nodes)
   [ -d "$shared" ] && seeds+=("$shared")
   echo "== fuzz_$t for ${seconds} s"
   start=$(date -u +%Y-%m-%dT%H:%MZ)
   nice -n 10 "$bin" -fork=1 -ignore_crashes=1 -ignore_ooms=1 -ignore_timeouts=1 \
-    -timeout=30 -rss_limit_mb=2048 -max_total_time="$seconds" \
+    -timeout=30 -rss_limit_mb=2048 -max_len="$max_len" -max_total_time="$seconds" \
     -artifact_prefix="$work/findings/" "$work/corpus" "${seeds[@]}" > "$work/last.log" 2>&1 || true
   # fork mode's status lines: "#EXECS: cov: C ft: F corp: N exec/s: E oom/timeout/crash: a/b/c ..."
   last=$(grep -E '^#[0-9]+: cov:' "$work/last.log" | tail -n 1 || true)
@@ -44,7 +48,12 @@ for t in "${targets[@]}"; do
   files=$(ls "tests/fuzz/corpus/$t" | wc -l)
   kb=$(du -sk "tests/fuzz/corpus/$t" | cut -f1)
   findings=$(ls "$work/findings" | wc -l)
+  triage=""
+  if [ "$t" = vdb ] && [ "$findings" -gt 0 ]; then
+    python3 tests/fuzz/triage_vdb.py "$bin" build "$work"/findings/* > "$work/triage.log" 2>&1 || true
+    triage=" ($(grep -c '^ok: .*third-party' "$work/triage.log") in OpenVDB, contained; $(grep -c '^FAIL' "$work/triage.log") FAIL)"
+  fi
   [ -f "$log" ] || printf '# Fuzz campaign\n\nOne row per run of `scripts/fuzz_campaign.sh` (one core, niced). Executions, coverage (edges) and features are libFuzzer'"'"'s final status line; oom/timeout/crash its counts; findings the artifacts kept.\n\n| start (UTC) | target | seconds | executions | cov | ft | oom/timeout/crash | findings | corpus files (KiB) |\n|---|---|---|---|---|---|---|---|---|\n' > "$log"
-  echo "| $start | fuzz_$t | $seconds | ${execs:-?} | ${cov:-?} | ${ft:-?} | ${otc:-?} | $findings | $files ($kb) |" >> "$log"
+  echo "| $start | fuzz_$t | $seconds | ${execs:-?} | ${cov:-?} | ${ft:-?} | ${otc:-?} | $findings$triage | $files ($kb) |" >> "$log"
   tail -n 1 "$log"
 done

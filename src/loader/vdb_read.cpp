@@ -18,6 +18,7 @@
 #include <fstream>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <vector>
 
 #include <openvdb/io/Archive.h>
@@ -61,6 +62,9 @@ public:
         openvdb::GridBase::Ptr grid; ///< its metadata only, until read()
     };
 
+    /// Throws NoOffsets for a stream without grid offsets (io::Stream's)
+    struct NoOffsets {};
+
     CheckedVdbFile(const std::string &path, const std::string &label)
         : m_label(label), m_is(path, std::ios::binary) {
         if (!m_is)
@@ -77,8 +81,7 @@ public:
         openvdb::MetaMap file_meta;
         file_meta.readMeta(m_is);
         if (!inputHasGridOffsets())
-            throw Error(label + ": an OpenVDB stream without grid offsets (written by "
-                        "io::Stream): convert it with vdb2nvdb");
+            throw NoOffsets{};
         int32_t count = readGridCount(m_is);
         if (!m_is || count < 0 || count > (1 << 20))
             throw Error(label + ": cannot read as an OpenVDB file: bad grid count");
@@ -105,6 +108,12 @@ public:
             d.seekToEnd(m_is);
             m_grids.push_back(std::move(g));
         }
+    }
+
+    /// Every grid's root counts against its bytes (check_root_counts)
+    void check_all_roots() {
+        for (const Grid &g : m_grids)
+            check_root_counts(g.descriptor);
     }
 
     openvdb::GridPtrVec metadata() const {
@@ -230,7 +239,14 @@ VdbGrid read_vdb_grid(const std::string &path, const std::string &selector) {
     openvdb::GridBase::Ptr grid;
     try {
         // The grids' metadata (no voxels), to choose one, then that grid alone
-        CheckedVdbFile file(path, label);
+        std::optional<CheckedVdbFile> opened;
+        try {
+            opened.emplace(path, label);
+        } catch (const CheckedVdbFile::NoOffsets &) {
+            throw Error(label + ": an OpenVDB stream without grid offsets (written by "
+                        "io::Stream): convert it with vdb2nvdb");
+        }
+        CheckedVdbFile &file = *opened;
         openvdb::GridPtrVec meta = file.metadata();
         if (meta.empty())
             throw Error(label + ": an OpenVDB file without grids");
@@ -278,6 +294,24 @@ VdbGrid read_vdb_grid(const std::string &path, const std::string &selector) {
     }
     out.convert_seconds = since(t0);
     return out;
+}
+
+bool check_vdb_structure(const std::string &path) {
+    static std::once_flag once;
+    std::call_once(once, [] { openvdb::initialize(); });
+    const std::string label = "\"" + path + "\"";
+    try {
+        CheckedVdbFile file(path, label);
+        file.check_all_roots();
+        return true;
+    } catch (const CheckedVdbFile::NoOffsets &) {
+        return false;
+    } catch (const Error &) {
+        throw;
+    } catch (const std::exception &e) {
+        throw Error(label + ": cannot read as an OpenVDB file (corrupt or truncated?): " +
+                    e.what());
+    }
 }
 
 } // namespace nanovdb_loader

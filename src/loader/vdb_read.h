@@ -19,4 +19,12 @@ namespace nanovdb_loader {
 /// message starts with "\"<path>\": ".
 VdbGrid read_vdb_grid(const std::string &path, const std::string &selector);
 
+/// The checks read_vdb_grid makes before OpenVDB reads a grid, for every
+/// grid of the file: the header, the grid descriptors' offsets against the
+/// file's size, and each tree root's tile and child counts against the
+/// bytes of its grid (vdb2nvdb runs them before io::Stream reads it all).
+/// False for a stream without grid offsets (nothing to check against);
+/// throws nanovdb_loader::Error for a damaged file.
+bool check_vdb_structure(const std::string &path);
+
 } // namespace nanovdb_loader

@@ -21,6 +21,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
+#include <string>
 
 namespace nanovdb_loader::vdb_reader {
 
@@ -42,6 +43,17 @@ inline uint64_t memory_budget(uint64_t file_bytes) {
     if (file_bytes > (UINT64_MAX - kBaseBytes) / kBytesPerFileByte)
         return UINT64_MAX;
     return kBaseBytes + kBytesPerFileByte * file_bytes;
+}
+
+/// The error for a read that asked for more than `budget`: `label` (the
+/// quoted file name), the largest block refused, the budget and its knob
+inline std::string budget_refusal(const std::string &label, uint64_t budget,
+                                  uint64_t refused_block) {
+    return label + ": damaged: reading it asks for more memory than a file of its size can "
+           "need (" + (refused_block ? "a block of " + std::to_string(refused_block >> 20) +
+                                       " MiB; " : std::string()) +
+           "the budget is " + std::to_string(budget >> 20) +
+           " MiB, NVDB_VDB_READER_MEMORY_MB raises it)";
 }
 
 /// Enforces `bytes` as the budget of live operator-new bytes from now on

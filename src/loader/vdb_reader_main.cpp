@@ -113,11 +113,6 @@ int reply(rd::Status status, const nl::VdbGrid *grid, std::string message) {
     return status == rd::Status::OutOfBudget ? rd::kExitOutOfBudget : (grid ? 0 : 1);
 }
 
-std::string mib(uint64_t bytes) {
-    char s[32];
-    std::snprintf(s, sizeof s, "%.0f MiB", double(bytes) / (1 << 20));
-    return s;
-}
 
 } // namespace
 
@@ -148,20 +143,13 @@ int main(int argc, char **argv) {
         nl::VdbGrid grid = nl::read_vdb_grid(path, selector);
         return reply(rd::Status::Ok, &grid, "");
     } catch (const std::bad_alloc &) {
-        const uint64_t refused = rd::heap_refused_bytes();
         return reply(rd::Status::OutOfBudget, nullptr,
-                     label + ": damaged: reading it asks for more memory than a file of its "
-                     "size can need (" + (refused ? "a block of " + mib(refused) + "; " : "") +
-                     "the budget is " + mib(budget) +
-                     ", NVDB_VDB_READER_MEMORY_MB raises it)");
+                     rd::budget_refusal(label, budget, rd::heap_refused_bytes()));
     } catch (const nl::Error &e) {
         // (a std::bad_alloc inside OpenVDB may arrive wrapped in its message)
         if (rd::heap_refused_bytes() && std::strstr(e.what(), "bad_alloc"))
             return reply(rd::Status::OutOfBudget, nullptr,
-                         label + ": damaged: reading it asks for more memory than a file of "
-                         "its size can need (a block of " + mib(rd::heap_refused_bytes()) +
-                         "; the budget is " + mib(budget) +
-                         ", NVDB_VDB_READER_MEMORY_MB raises it)");
+                         rd::budget_refusal(label, budget, rd::heap_refused_bytes()));
         return reply(rd::Status::Error, nullptr, e.what());
     } catch (const std::exception &e) {
         return reply(rd::Status::Error, nullptr,

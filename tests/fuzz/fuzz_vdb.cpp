@@ -27,6 +27,8 @@
 
 #include <nanovdb_loader/load.h>
 
+#include "mem_file.h"
+
 #include <sys/mman.h>
 #include <unistd.h>
 
@@ -48,23 +50,7 @@ namespace {
     std::abort();
 }
 
-/// The input as a file: a memfd, named by its /proc/self/fd path.
-struct MemFile {
-    int fd = -1;
-    std::string path;
-    MemFile(const uint8_t *data, size_t size) {
-        fd = memfd_create("vdb_fuzz", 0);
-        if (fd < 0) die("memfd_create failed");
-        size_t done = 0;
-        while (done < size) {
-            const ssize_t n = write(fd, data + done, size - done);
-            if (n <= 0) die("write to memfd failed");
-            done += size_t(n);
-        }
-        path = "/proc/self/fd/" + std::to_string(fd);
-    }
-    ~MemFile() { close(fd); }
-};
+using nvdb_fuzz::MemFile; // (mem_file.h)
 
 void read_one(const std::string &path, size_t size, const std::string &selector) {
     nio::VdbGrid grid;

@@ -13,24 +13,12 @@
 
 #include "error.h"
 #include "format.h"
+#include "../../src/loader/vdb_read.h"
 #include "../../src/loader/vdb_reader_budget.h"
 
 namespace vdb2nvdb {
 
 namespace fs = std::filesystem;
-
-namespace {
-
-std::string damaged_by_size(const std::string &path, uint64_t budget) {
-    const uint64_t refused = nanovdb_loader::vdb_reader::heap_refused_bytes();
-    return dq(path) + ": damaged: reading it asks for more memory than a file of its size "
-           "can need (" + (refused ? "a block of " + std::to_string(refused >> 20) + " MiB; "
-                                   : std::string()) +
-           "the budget is " + std::to_string(budget >> 20) +
-           " MiB, NVDB_VDB_READER_MEMORY_MB raises it)";
-}
-
-} // namespace
 
 openvdb::GridPtrVec read_vdb(const std::string &path) {
     std::error_code ec;
@@ -41,10 +29,18 @@ openvdb::GridPtrVec read_vdb(const std::string &path) {
     // OpenVDB allocates what the file declares: a damaged file asks for
     // gigabytes. Reading runs under the reader's budget (operator new
     // refuses past it, before allocating: src/loader/vdb_reader_budget.h)
-    const uint64_t budget =
-        nanovdb_loader::vdb_reader::memory_budget(fs::file_size(path, ec));
+    namespace rdr = nanovdb_loader::vdb_reader;
+    const uint64_t budget = rdr::memory_budget(fs::file_size(path, ec));
+    auto refusal = [&] { return rdr::budget_refusal(dq(path), budget, rdr::heap_refused_bytes()); };
     try {
-        nanovdb_loader::vdb_reader::ScopedHeapBudget scoped(budget);
+        rdr::ScopedHeapBudget scoped(budget);
+        // Counts OpenVDB would loop over unchecked (a root declaring 4e9
+        // tiles): checked against the file first (src/loader/vdb_read.h)
+        try {
+            nanovdb_loader::check_vdb_structure(path);
+        } catch (const nanovdb_loader::Error &e) {
+            throw Error(e.what());
+        }
         // io::Stream reads the grids in file order (io::File::getGrids()
         // returns them sorted by name).
         std::ifstream is(path, std::ios::binary);
@@ -63,14 +59,14 @@ openvdb::GridPtrVec read_vdb(const std::string &path) {
     } catch (const Error &) {
         throw;
     } catch (const openvdb::Exception &e) {
-        if (nanovdb_loader::vdb_reader::heap_refused_bytes())
-            throw Error(damaged_by_size(path, budget));
+        if (rdr::heap_refused_bytes())
+            throw Error(refusal());
         throw Error(dq(path) + ": cannot read as an OpenVDB file: " + e.what());
     } catch (const std::bad_alloc &) {
-        throw Error(damaged_by_size(path, budget));
+        throw Error(refusal());
     } catch (const std::exception &e) {
-        if (nanovdb_loader::vdb_reader::heap_refused_bytes())
-            throw Error(damaged_by_size(path, budget));
+        if (rdr::heap_refused_bytes())
+            throw Error(refusal());
         throw Error(dq(path) + ": cannot read as an OpenVDB file (corrupt or truncated?): " +
                     e.what());
     }
