@@ -539,7 +539,10 @@ def test20_corrupt_and_truncated_input(gen, tmp_path):
     (tmp_path / "empty.vdb").write_bytes(b"")
     for name in ["garbage.vdb", "trunc.vdb", "empty.vdb"]:
         p = run(tmp_path / name, tmp_path / "o.nvdb", rc=1)
-        assert name in p.stderr and "cannot read as an OpenVDB file" in p.stderr
+        # (a file cut inside a grid: its descriptor's end lies past the
+        # file's, found before OpenVDB reads it: src/loader/vdb_read.h)
+        assert name in p.stderr and ("cannot read as an OpenVDB file" in p.stderr or
+                                     "truncated: grid" in p.stderr), p.stderr
     assert not (tmp_path / "o.nvdb").exists() and leftovers(tmp_path) == []
 
 
