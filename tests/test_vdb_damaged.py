@@ -17,6 +17,7 @@ deadline):
 - test05: the fuzzers' reproducers (tests/data/vdb_crashers/), each a
   clear error.
 - test06: vdb2nvdb on the same files: an error, never an abort.
+- test07: a .vol whose header declares 10^12 voxels: refused from its header.
 """
 
 import json
@@ -224,3 +225,17 @@ def test06_vdb2nvdb_reports_instead_of_aborting(fog, tmp_path):
         assert r.returncode == 1, (name, r.returncode, r.stderr[-500:])
         assert f"{name}.vdb" in r.stderr and "vdb2nvdb: error:" in r.stderr, r.stderr
         assert not out.exists() and not list(tmp_path.glob(f".{name}.nvdb.tmp-*"))
+
+
+def test07_vol_header_declaring_a_trillion_voxels(tmp_path):
+    """A dense .vol (an input nanovdbvolume makes sparse in memory) whose
+    header declares 10^12 voxels in a 112-byte file: refused from the
+    header, before Mitsuba's VolumeGrid allocates 4 TB"""
+    bad = tmp_path / "huge.vol"
+    bad.write_bytes(b"VOL\x03" + struct.pack("<iiiii", 1, 10000, 10000, 10000, 1) +
+                    struct.pack("<6f", 0, 0, 0, 1, 1, 1) + bytes(64))
+    rows, self_peak = load_in_child([bad], timeout=120)
+    assert not rows[0]["ok"], rows[0]
+    assert "huge.vol" in rows[0]["error"] and "damaged .vol" in rows[0]["error"], rows[0]
+    assert "10000 x 10000 x 10000" in rows[0]["error"], rows[0]
+    assert self_peak < 1024, self_peak

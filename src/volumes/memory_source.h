@@ -12,6 +12,10 @@
 
 #pragma once
 
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
 #include <mitsuba/core/properties.h>
 #include <mitsuba/render/volumegrid.h>
 
@@ -42,9 +46,45 @@ template <typename Float, typename Spectrum> struct MemorySource {
     std::optional<ScalarAffineTransform4f> bbox_transform; ///< a VolumeGrid's bbox -> unit cube
     ref<VolumeGrid> grid;               ///< keeps a VolumeGrid's values alive
 
+    /**
+     * A .vol's declared size against the file, before VolumeGrid allocates
+     * it: the header (\"VOL\", version 3, encoding 1 = float32, x, y, z,
+     * channels, a box of 6 floats: 48 bytes) declares x*y*z*channels
+     * floats, which must be the rest of the file. A damaged header can
+     * declare 10^12 voxels in a 100-byte file.
+     */
+    static void check_vol_header(const std::string &vol_path) {
+        std::ifstream is(vol_path, std::ios::binary);
+        unsigned char h[48];
+        if (!is.read(reinterpret_cast<char *>(h), 48) || h[0] != 'V' || h[1] != 'O' ||
+            h[2] != 'L')
+            return; // (VolumeGrid says what is wrong with it)
+        int32_t v[5];
+        std::memcpy(v, h + 4, sizeof v);
+        if (v[0] != 1)
+            return;
+        std::error_code ec;
+        const uint64_t file = (uint64_t) std::filesystem::file_size(vol_path, ec);
+        uint64_t values = 1;
+        bool overflow = false;
+        for (int k = 1; k < 5; ++k) {
+            if (v[k] <= 0)
+                Throw("nanovdbvolume: \"%s\": damaged .vol header: a size of %d", vol_path, v[k]);
+            overflow |= values > UINT64_MAX / 4 / (uint64_t) v[k];
+            values *= (uint64_t) v[k];
+        }
+        if (overflow || ec || values * 4 != file - 48)
+            Throw("nanovdbvolume: \"%s\": damaged .vol: its header declares %d x %d x %d "
+                  "voxels of %d channels (%s bytes of values); the file holds %llu",
+                  vol_path, v[1], v[2], v[3], v[4],
+                  overflow ? std::string("more than 2^64") : std::to_string(values * 4),
+                  (unsigned long long) (file - 48));
+    }
+
     /// A gridvolume file (.vol: dense, Mitsuba's own format), read by
     /// Mitsuba's VolumeGrid
     MemorySource(const std::string &vol_path) {
+        check_vol_header(vol_path);
         try {
             grid = new VolumeGrid(fs::path(vol_path));
         } catch (const std::exception &e) {
