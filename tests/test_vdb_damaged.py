@@ -239,3 +239,14 @@ def test07_vol_header_declaring_a_trillion_voxels(tmp_path):
     assert "huge.vol" in rows[0]["error"] and "damaged .vol" in rows[0]["error"], rows[0]
     assert "10000 x 10000 x 10000" in rows[0]["error"], rows[0]
     assert self_peak < 1024, self_peak
+
+
+def test08_vdb2nvdb_deadline(fog, tmp_path):
+    """vdb2nvdb's parent stops a read past its deadline (300 s + 10 s per
+    MiB; here NVDB_VDB2NVDB_TIMEOUT=0.01 on an intact file) and leaves no
+    output"""
+    out = tmp_path / "o.nvdb"
+    r = subprocess.run([str(VDB2NVDB), str(fog), str(out)], capture_output=True, text=True,
+                       timeout=60, env={**os.environ, "NVDB_VDB2NVDB_TIMEOUT": "0.01"})
+    assert r.returncode == 1 and "took longer than 0.01 s" in r.stderr, r.stderr
+    assert not out.exists() and not list(tmp_path.glob(".o.nvdb.tmp-*"))

@@ -495,6 +495,12 @@ TEST_CASE("list_grids and read_grid reject hostile files") {
         CHECK_IO_ERROR(nio::read_grid(p, grids[0], Aligned(grids[0].grid_size).data()), p,
                        "blosc chunk 0", "expected");
         b = blosc;
+        poke<uint64_t>(b, payload, uint64_t(1) << 30); // a chunk claiming 1 GiB: refused
+        write(b);                                       // from the payload, before allocating
+        grids = nio::list_grids(p);
+        CHECK_IO_ERROR(nio::read_grid(p, grids[0], Aligned(grids[0].grid_size).data()), p,
+                       "blosc chunk 0");
+        b = blosc;
         poke<uint64_t>(b, payload, 3); // chunk smaller than a blosc header
         write(b);
         grids = nio::list_grids(p);

@@ -12,6 +12,7 @@
 
 #include <openvdb/openvdb.h>
 
+#include <chrono>
 #include <csignal>
 #include <filesystem>
 #include <spawn.h>
@@ -332,10 +333,41 @@ int main(int argc, char **argv) {
     g_child = pid;
     for (int sig : { SIGINT, SIGTERM, SIGHUP })
         std::signal(sig, forward_signal);
+    // A deadline where there is an input file (not for `generate`): 300 s
+    // and 10 s per MiB, NVDB_VDB2NVDB_TIMEOUT seconds instead. No damaged
+    // file known makes the read loop now (the root counts are checked
+    // first), but nothing should hang a batch job if one does.
+    const std::string input = input_name(argc, argv);
+    double timeout = 0;
+    std::error_code ec;
+    if (std::filesystem::is_regular_file(input, ec))
+        timeout = 300.0 + 10.0 * double(std::filesystem::file_size(input, ec)) / (1 << 20);
+    if (const char *t = std::getenv("NVDB_VDB2NVDB_TIMEOUT"))
+        timeout = std::atof(t);
+    const auto deadline = std::chrono::steady_clock::now() +
+                          std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                              std::chrono::duration<double>(timeout));
     int status = 0;
-    while (::waitpid(pid, &status, 0) < 0)
-        if (errno != EINTR)
+    for (;;) {
+        pid_t r = ::waitpid(pid, &status, timeout > 0 ? WNOHANG : 0);
+        if (r == pid)
+            break;
+        if (r < 0 && errno != EINTR)
             return ExitError;
+        if (r == 0) {
+            if (std::chrono::steady_clock::now() > deadline) {
+                ::kill(pid, SIGTERM); // (the child removes its temporary outputs)
+                ::waitpid(pid, &status, 0);
+                std::fprintf(stderr,
+                             "vdb2nvdb: error: %s: damaged or hostile: reading it took longer "
+                             "than %g s and was stopped (NVDB_VDB2NVDB_TIMEOUT sets the "
+                             "limit); no output was written\n",
+                             dq(input).c_str(), timeout);
+                return ExitError;
+            }
+            ::usleep(20000);
+        }
+    }
     if (WIFEXITED(status))
         return WEXITSTATUS(status);
     const int sig = WTERMSIG(status);
