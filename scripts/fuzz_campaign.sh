@@ -51,7 +51,9 @@ for t in "${targets[@]}"; do
   triage=""
   if [ "$t" = vdb ] && [ "$findings" -gt 0 ]; then
     python3 tests/fuzz/triage_vdb.py "$bin" build "$work"/findings/* > "$work/triage.log" 2>&1 || true
-    triage=" ($(grep -c '^ok: .*third-party' "$work/triage.log") in OpenVDB, contained; $(grep -c '^FAIL' "$work/triage.log") FAIL)"
+    contained=$(grep -c '^ok: ' "$work/triage.log" || true)
+    failed=$(grep -c '^FAIL' "$work/triage.log" || true)
+    triage=" (triaged: $contained contained in the reader, $failed FAIL)"
   fi
   [ -f "$log" ] || printf '# Fuzz campaign\n\nOne row per run of `scripts/fuzz_campaign.sh` (one core, niced). Executions, coverage (edges) and features are libFuzzer'"'"'s final status line; oom/timeout/crash its counts; findings the artifacts kept.\n\n| start (UTC) | target | seconds | executions | cov | ft | oom/timeout/crash | findings | corpus files (KiB) |\n|---|---|---|---|---|---|---|---|---|\n' > "$log"
   echo "| $start | fuzz_$t | $seconds | ${execs:-?} | ${cov:-?} | ${ft:-?} | ${otc:-?} | $findings$triage | $files ($kb) |" >> "$log"

@@ -44,7 +44,9 @@ def crash_site(fuzzer, finding):
         text = m.group(2)
         if any(k in text for k in RUNTIME):
             continue
-        return ("third-party" if any(k in text for k in THIRD_PARTY) else "ours: " + text), head
+        func = re.sub(r"\(.*", "", text).strip()[:90]
+        return ("third-party: " + func if any(k in text for k in THIRD_PARTY)
+                else "ours: " + text), head
     return "unknown", head
 
 
@@ -61,7 +63,8 @@ def main(fuzzer, build, findings):
             rows = [json.loads(l) for l in r.stdout.splitlines() if l.startswith('{"file"')]
             contained = (r.returncode == 0 and rows and
                          (rows[0]["ok"] or copy.name in rows[0]["error"]))
-            verdict = "ok" if contained and (where is None or where == "third-party") else "FAIL"
+            verdict = ("ok" if contained and (where is None or where.startswith("third-party"))
+                       else "FAIL")
             bad += verdict == "FAIL"
             plugin = ("loaded" if rows and rows[0]["ok"] else
                       (rows[0]["error"].split("nanovdbvolume: ")[-1][:160] if rows else
