@@ -40,7 +40,7 @@ shared="${NVDB_SHARED_DATA:-../shared/data}"
 # (-max_len: the typed seeds are 1.2-2.4 MB; the default 1 MiB would cut
 # them short, and no quantized or Vec3f grid would reach the lookups)
 build-fuzz/bin/fuzz_nvdb -max_total_time="${NVDB_FUZZ_SECONDS:-20}" -print_final_stats=1 -max_len=2500000 \
-  build-fuzz/corpus tests/fuzz/corpus/nvdb build-fuzz/seeds \
+  build-fuzz/corpus $( [ -d tests/fuzz/corpus/nvdb ] && echo tests/fuzz/corpus/nvdb ) build-fuzz/seeds \
   $( [ -d "$shared" ] && echo "$shared" ) 2>&1 | tail -n 8
 # Small OpenVDB files from the generator (fog, random values, a level set,
 # an empty grid; ~10-80 KB: a large file reads at a few per second). The
@@ -57,7 +57,8 @@ done
 rm -rf build-fuzz/findings-vdb && mkdir -p build-fuzz/findings-vdb
 build-fuzz/bin/fuzz_vdb -fork=1 -ignore_crashes=1 -ignore_ooms=1 -ignore_timeouts=1 \
   -max_total_time="${NVDB_FUZZ_SECONDS:-20}" -rss_limit_mb=2048 -max_len=131072 \
-  -artifact_prefix=build-fuzz/findings-vdb/ build-fuzz/corpus-vdb tests/fuzz/corpus/vdb \
+  -artifact_prefix=build-fuzz/findings-vdb/ build-fuzz/corpus-vdb \
+  $( [ -d tests/fuzz/corpus/vdb ] && echo tests/fuzz/corpus/vdb ) \
   build-fuzz/seeds-vdb > build-fuzz/fuzz_vdb.log 2>&1 || true
 grep -E '^#[0-9]+: cov:' build-fuzz/fuzz_vdb.log | tail -n 1 || true
 findings=(build-fuzz/findings-vdb/*)
