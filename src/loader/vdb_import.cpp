@@ -186,9 +186,11 @@ struct Transfer {
 Transfer transfer(int reply_fd, int err_fd, uint64_t cap, Clock::time_point deadline) {
     Transfer t;
     pollfd fds[2] = { { reply_fd, POLLIN, 0 }, { err_fd, POLLIN, 0 } };
-    std::vector<uint8_t> chunk(1 << 16);
-    // The header first (to size the buffer once), then the rest
-    size_t expected = sizeof(rd::Reply);
+    char scratch[4096];
+    // The reply is read straight into its buffer: the header first, which
+    // sizes the buffer once, then the rest (no second copy of the grid)
+    t.reply.resize(sizeof(rd::Reply));
+    size_t filled = 0;
     bool have_header = false;
     while (fds[0].fd >= 0 || fds[1].fd >= 0) {
         auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
@@ -203,33 +205,31 @@ Transfer transfer(int reply_fd, int err_fd, uint64_t cap, Clock::time_point dead
             if (p.fd < 0 || !(p.revents & (POLLIN | POLLHUP | POLLERR)))
                 continue;
             ssize_t got;
-            if (&p == &fds[0]) {
-                size_t want = std::max<size_t>(1, std::min<size_t>(chunk.size(),
-                                  expected > t.reply.size() ? expected - t.reply.size() : 1));
-                got = ::read(p.fd, chunk.data(), want);
-                if (got > 0) {
-                    t.reply.insert(t.reply.end(), chunk.data(), chunk.data() + got);
-                    if (!have_header && t.reply.size() >= sizeof(rd::Reply)) {
-                        have_header = true;
-                        rd::Reply r;
-                        std::memcpy(&r, t.reply.data(), sizeof r);
-                        uint64_t body = uint64_t(std::min(r.name_bytes, rd::kMaxText)) +
-                                        std::min(r.message_bytes, rd::kMaxText) + r.grid_bytes;
-                        if (r.grid_bytes > cap) {
-                            t.too_long = true;
-                            return t;
-                        }
-                        expected = size_t(sizeof r + body);
-                        t.reply.reserve(expected);
-                    } else if (have_header && t.reply.size() > expected) {
+            if (&p == &fds[0] && filled < t.reply.size()) {
+                got = ::read(p.fd, t.reply.data() + filled, t.reply.size() - filled);
+                if (got > 0)
+                    filled += size_t(got);
+                if (!have_header && filled == sizeof(rd::Reply)) {
+                    have_header = true;
+                    rd::Reply r;
+                    std::memcpy(&r, t.reply.data(), sizeof r);
+                    if (r.grid_bytes > cap) {
                         t.too_long = true;
                         return t;
                     }
+                    t.reply.resize(sizeof r + std::min(r.name_bytes, rd::kMaxText) +
+                                   std::min(r.message_bytes, rd::kMaxText) + r.grid_bytes);
+                }
+            } else if (&p == &fds[0]) { // the reply is complete: only its end may follow
+                got = ::read(p.fd, scratch, sizeof scratch);
+                if (got > 0) {
+                    t.too_long = true;
+                    return t;
                 }
             } else {
-                got = ::read(p.fd, chunk.data(), chunk.size());
+                got = ::read(p.fd, scratch, sizeof scratch);
                 if (got > 0) {
-                    t.err.append((const char *) chunk.data(), size_t(got));
+                    t.err.append(scratch, size_t(got));
                     if (t.err.size() > 8192)
                         t.err.erase(0, t.err.size() - 4096);
                 }
@@ -238,6 +238,7 @@ Transfer transfer(int reply_fd, int err_fd, uint64_t cap, Clock::time_point dead
                 p.fd = -1;
         }
     }
+    t.reply.resize(filled); // (a reply cut short is found malformed by the caller)
     return t;
 }
 
