@@ -34,7 +34,6 @@
 #include <poll.h>
 #include <signal.h>
 #include <spawn.h>
-#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -135,7 +134,6 @@ struct Fd {
 struct Child {
     pid_t pid = -1;
     int status = 0;
-    rusage usage{};
     bool waited = false;
     void kill_and_wait() {
         if (pid > 0 && !waited)
@@ -146,7 +144,7 @@ struct Child {
         if (pid <= 0 || waited)
             return;
         waited = true;
-        while (::wait4(pid, &status, 0, &usage) < 0) {
+        while (::waitpid(pid, &status, 0) < 0) {
             if (errno != EINTR) { // (SIGCHLD ignored by the host: no status)
                 status = 0;
                 return;
