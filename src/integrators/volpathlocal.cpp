@@ -58,10 +58,8 @@ Volumetric path tracer with local majorants (:monosp:`volpathlocal`)
      ``nanovdb_mitsuba.volume_facts``: 0.05 for a real smoke, 1 for a cube of one
      density). Above it the walk would cost its steps and save too few
      null collisions, and the medium is tracked as ``volpath`` does.
-     (Default: 0.5: measured with stochastic_trilinear, the benchmark cloud
-     at 0.24 renders in 0.42x the time of ``volpath``, and sphere_fog_256 at
-     0.55 forced through the walk in 0.95x (llvm_ad_rgb) and 1.08x
-     (scalar_rgb) the time of its default; bench/PERF_LOG.md 18-19)
+     The measurements behind the default: bench/PERF_LOG.md §18-19.
+     (Default: 0.5)
 
  * - coarse_optical_depth
    - |float|

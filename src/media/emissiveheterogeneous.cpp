@@ -28,12 +28,14 @@ Emissive heterogeneous medium (:monosp:`emissiveheterogeneous`)
 
 .. pluginparameters::
 
- * - albedo, sigma_t, scale, has_spectral_extinction, (nested phase)
+ * - albedo, sigma_t, scale, has_spectral_extinction, sample_emitters, (nested phase)
    - as :ref:`heterogeneous <medium-heterogeneous>`
-   - The medium's absorption and scattering, exactly as ``heterogeneous``
-     (Defaults: albedo 0.75, sigma_t 1, scale 1). A ``nanovdbvolume``
-     sigma_t is tracked through its local majorants by ``volpathlocal``.
-   - |exposed|, |differentiable| (albedo, sigma_t)
+   - The medium's absorption and scattering, exactly as ``heterogeneous``.
+     A ``nanovdbvolume`` sigma_t is tracked through its local majorants by
+     ``volpathlocal``. (Default: albedo 0.75, sigma_t 1, scale 1,
+     has_spectral_extinction |true|, sample_emitters |true|, an
+     ``isotropic`` phase)
+   - |exposed| (albedo, sigma_t, scale), |differentiable| (albedo, sigma_t)
 
  * - emission
    - |float|, |volume|
@@ -47,6 +49,7 @@ Emissive heterogeneous medium (:monosp:`emissiveheterogeneous`)
    - Radiance mode, one-channel ``emission``: its colour, an emitter's
      spectrum (an RGB value becomes an illuminant in spectral variants, as
      an ``area`` emitter's radiance does). (Default: 1)
+   - |exposed|
 
  * - temperature
    - |float|, |volume|

@@ -68,6 +68,10 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
    - |tensor|
    - Instead of a file, as for ``gridvolume``: a tensor of shape (z, y, x)
      or (z, y, x, channels), 1, 3 or 6 channels, made into a sparse grid.
+     With ``differentiable=true`` the values of a 1- or 3-channel volume
+     (from any source) are exposed as the differentiable parameter ``data``
+     (see ``differentiable``); a 6-channel volume's are not.
+   - |exposed|, |differentiable|
 
  * - values, coords
    - |tensor|
