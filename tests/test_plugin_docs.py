@@ -361,3 +361,44 @@ def test07_parser_finds_reads():
     assert sorted(reads) == ["alpha", "beta", "delta", "epsilon", "gamma", "zeta"]
     assert reads["delta"] == ["demo.cpp:8 (other.type)"]
     assert other == [("demo.cpp", "props.type(n)", 11)]
+
+
+def _examples(name):
+    """{language: code} of the examples on the plugin's page."""
+    kind, source = PLUGINS[name]
+    page = gen.render_page(name, kind, source)
+    return {lang: code for lang, code in re.findall(r"^```(\w+)\n(.*?)^```$", page, re.M | re.S)}
+
+
+def _xml_properties(text, name):
+    """The properties that an XML example gives to plugins of type `name`."""
+    import xml.etree.ElementTree as ET
+    return {child.get("name") for el in ET.fromstring(text).iter()
+            if el.get("type") == name for child in el if child.get("name")}
+
+
+def _dict_properties(node, name):
+    """The same for a scene dictionary."""
+    used = set()
+    if isinstance(node, dict):
+        if node.get("type") == name:
+            used |= set(node) - {"type"}
+        for v in node.values():
+            used |= _dict_properties(v, name)
+    return used
+
+
+@pytest.mark.parametrize("name", list(PLUGINS))
+def test08_examples_use_documented_properties(name):
+    # The pages' examples are scene fragments (as in Mitsuba's reference), so
+    # tests/test_readme.py does not run them: here they must parse, use only
+    # documented properties, and say the same thing in XML and in Python.
+    import ast
+    ex = _examples(name)
+    assert set(ex) == {"xml", "python"}, f"{name}: examples in {sorted(ex)}"
+    in_xml = _xml_properties(ex["xml"], name)
+    # a Python example is the inside of a scene dictionary
+    in_python = _dict_properties(ast.literal_eval("{" + ex["python"] + "}"), name)
+    assert in_xml, f"{name}'s XML example gives it no property"
+    assert in_xml <= documented(name), f"{name}: undocumented in the XML example"
+    assert in_python == in_xml, f"{name}: the Python and XML examples differ"
