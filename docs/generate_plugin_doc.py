@@ -155,14 +155,18 @@ def _continues(fields, line):
     return _indent(line) > 3
 
 
-_INLINE = re.compile(r"``(?P<code>.+?)``"
+_INLINE = re.compile(r"``(?P<code>[^`]+?)``"
                      r"|:(?P<role>[\w-]+):`(?P<arg>[^`]+)`"
                      r"|\|(?P<marker>[\w-]+)\|")
 
 
 def inline(text, source):
-    """RST inline markup as Markdown."""
+    """RST inline markup as Markdown (markup that spans a line break is
+    joined onto one line)."""
     def one(m):
+        return re.sub(r"\s*\n\s*", " ", _one(m))
+
+    def _one(m):
         if m.group("code") is not None:
             return f"`{m.group('code')}`"
         if m.group("marker") is not None:
@@ -180,7 +184,11 @@ def inline(text, source):
             label_text, label = (r.group(1), r.group(2)) if r else (arg, arg)
             return f"[{label_text}]({ref_target(label, source)})"
         raise DocError(f"{source}: unknown role :{role}:")
-    return _INLINE.sub(one, text)
+    out = _INLINE.sub(one, text)
+    left = re.search(r":[\w-]+:`|``", out)
+    if left:
+        raise DocError(f"{source}: markup not understood near {out[left.start():][:40]!r}")
+    return out
 
 
 def ref_target(label, source):
@@ -210,16 +218,23 @@ def render_body(lines, source):
     """The prose and the examples: paragraphs and lists as they are (inline
     markup converted), `.. tabs::` / `.. code-tab::` and `.. code-block::`
     as fenced blocks."""
-    out, i = [], 0
+    out, prose, i = [], [], 0
+
+    def flush():
+        if prose:
+            out.extend(inline("\n".join(prose), source).split("\n"))
+            prose.clear()
+
     while i < len(lines):
         line = lines[i]
         d = re.match(r"^(\s*)\.\. ([\w-]+)::\s*(\S*)\s*$", line)
         if not d:
             if line.lstrip().startswith(".. "):
                 raise DocError(f"{source}: not understood: {line.strip()!r}")
-            out.append(inline(line.rstrip(), source))
+            prose.append(line.rstrip())
             i += 1
             continue
+        flush()
         name, arg = d.group(2), d.group(3)
         if name == "tabs":
             i += 1
@@ -242,6 +257,7 @@ def render_body(lines, source):
             out.append("")
         out += [NOT_RUN, f"```{lang}"] + [c[strip:].rstrip() for c in code] + ["```", ""]
         i = j
+    flush()
     while out and not out[-1].strip():
         out.pop()
     # no runs of blank lines

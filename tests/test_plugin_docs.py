@@ -18,6 +18,11 @@ the properties its plugin reads:
   properties Mitsuba's base classes read (`Base(props)`), each of which
   test06 checks at run time (Mitsuba refuses a property nothing reads), and
   reads whose name is not a literal.
+
+The pages' examples are scene fragments that tests/test_readme.py does not
+run: test08 checks that they parse, use documented properties only, and say
+the same in XML and Python. test09 checks the |exposed| and |differentiable|
+markers against what mi.traverse() lists and differentiates (llvm_ad_rgb).
 """
 import importlib.util
 import re
@@ -227,6 +232,9 @@ Demo volume (:monosp:`demovolume`)
      - ``b``
 
 Prose with :math:`x^2` and a link to :ref:`volpathlocal <integrator-volpathlocal>`.
+Markup across lines: :math:`a
+- b` and ``c
+d``.
 
 - an item
   that goes on
@@ -261,6 +269,7 @@ def test03_generator_converts_rst():
     skip = gen.NOT_RUN
     assert gen.render_body(block.body, "demo.cpp") == "\n".join([
         "Prose with $x^2$ and a link to [volpathlocal](volpathlocal.md).",
+        "Markup across lines: $a - b$ and `c d`.",
         "",
         "- an item",
         "  that goes on",
@@ -277,7 +286,7 @@ def test03_generator_converts_rst():
         "```"])
     # Nothing the generator does not understand is dropped silently
     for bad in [BLOCK.replace("|int|", "|integer|"), BLOCK.replace(":math:", ":maths:"),
-                BLOCK.replace(".. tabs::", ".. note::"),
+                BLOCK.replace(".. tabs::", ".. note::"), BLOCK.replace("``c", "``c`"),
                 BLOCK.replace("code-tab:: python", "code-tab:: cpp")]:
         with pytest.raises(gen.DocError):
             b = gen.parse_block(bad, "demo.cpp")
@@ -402,3 +411,50 @@ def test08_examples_use_documented_properties(name):
     assert in_xml, f"{name}'s XML example gives it no property"
     assert in_xml <= documented(name), f"{name}: undocumented in the XML example"
     assert in_python == in_xml, f"{name}: the Python and XML examples differ"
+
+
+def row_flags(row):
+    """{flag: the properties it applies to}: "|exposed|, |differentiable|"
+    covers the whole row, "|exposed| (albedo, sigma_t)" those named."""
+    out = {}
+    for m in re.finditer(r"\|(\w+)\|\s*(?:\(([^)]*)\))?", row.flags):
+        names = [n.strip() for n in m.group(2).split(",")] if m.group(2) else row.properties()
+        out.setdefault(m.group(1), set()).update(names)
+    return out
+
+
+def _configs(name):
+    """Scenes that between them create every exposed parameter."""
+    import mitsuba as mi
+    import numpy as np
+    if name == "nanovdbvolume":
+        return [{"data": mi.TensorXf(np.ones((2, 2, 2), dtype=np.float32)),
+                 "differentiable": True}]
+    if name == "emissiveheterogeneous":
+        return [{"emission": 1.0, "color": 0.5}, {"temperature": 1.0}]
+    return [{}]
+
+
+@pytest.mark.parametrize("name", list(PLUGINS))
+def test09_flags_match_traverse(variant_llvm_ad_rgb, name):
+    import mitsuba as mi
+    exposed = {}  # property -> differentiable
+    for config in _configs(name):
+        params = mi.traverse(mi.load_dict({"type": name, **config}))
+        for key in params.keys():
+            diff = not (params.flags(key) & int(mi.ParamFlags.NonDifferentiable))
+            exposed[key.split(".")[0]] = exposed.get(key.split(".")[0], False) or diff
+    flagged = {}
+    for row in block_rows(name):
+        for flag, props in row_flags(row).items():
+            flagged.setdefault(flag, set()).update(props)
+    assert set(flagged) <= {"exposed", "differentiable"}
+    assert flagged.get("exposed", set()) <= set(exposed), (
+        f"{name}: marked |exposed| but not in mi.traverse(): "
+        f"{sorted(flagged['exposed'] - set(exposed))}")
+    assert flagged.get("differentiable", set()) <= flagged.get("exposed", set())
+    # a differentiable parameter that has a row carries the marker
+    want = {p for p, d in exposed.items() if d} & documented(name)
+    assert want == flagged.get("differentiable", set()), (
+        f"{name}: |differentiable| marks {sorted(flagged.get('differentiable', ()))}, "
+        f"mi.traverse() differentiates {sorted(want)}")
