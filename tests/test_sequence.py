@@ -121,8 +121,8 @@ def test04_one_camera_frames_every_frame(plan, frames_dir, tmp_path):
     for e in plan["frames"]:
         if e["status"] != "ok":
             continue
-        nvdb = seq.convert(str(frames_dir / f"smoke.{e['frame']:04d}.vdb"), "density",
-                           str(tmp_path))
+        # The frame's .vdb itself, as the command reads it
+        nvdb = str(frames_dir / f"smoke.{e['frame']:04d}.vdb")
         scene, info = framed_scene(mi, nvdb, sequence=plan, res=RES)
         cam = info["camera"]
         cams.add(json.dumps(cam, sort_keys=True))
@@ -324,7 +324,7 @@ def test10_fire_frames_without_the_grid(fire_dir, tmp_path):
                 and 'without emission: no grid "temperature"' in ln]) == 1
     medium = json.loads((tmp_path / "s" / "f.0001.scene.json").read_text())["box"]["interior"]
     assert medium["type"] == "heterogeneous" and medium["albedo"]["value"][0] == plan["albedo"]
-    nvdb = seq.convert(str(d / "fire.0004.vdb"), ["density", "temperature"], str(tmp_path))
+    nvdb = str(d / "fire.0004.vdb")  # (the .vdb itself, as the command reads it)
     scene, info = framed_scene(mi, nvdb, sequence=plan, res=RES)
     assert scene["box"]["interior"]["type"] == "emissiveheterogeneous"
     assert info["emission"]["temperature_scale"] == plan["emission"]["temperature_scale"]

@@ -23,6 +23,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <nanovdb_loader/container.h>
 
@@ -41,6 +42,13 @@ struct VdbGrid {
     uint64_t reader_peak_bytes = 0; ///< its peak resident memory
 };
 
+/// A grid of a .vdb file as its descriptor and metadata describe it
+struct VdbGridInfo {
+    std::string name;         ///< made printable (printable_text)
+    std::string type;         ///< OpenVDB's value type: "float", "vec3s", "int32", ...
+    uint32_t grid_class = 0;  ///< OpenVDB's GridClass (0 unknown, 1 level set, 2 fog, 3 staggered)
+};
+
 /// Whether the plugin was built with OpenVDB (.vdb files can be read)
 bool vdb_import_available();
 
@@ -48,7 +56,20 @@ bool vdb_import_available();
 bool is_vdb_path(const std::string &path);
 
 /// The grid `selector` of the .vdb file at `path`: a name, else a decimal
-/// index, or (empty) the first float or vec3s grid; converted.
-VdbGrid import_vdb_grid(const std::string &path, const std::string &selector);
+/// index, or (empty) the first float or vec3s grid; converted (a level set
+/// made a fog volume unless fog_level_sets is false).
+VdbGrid import_vdb_grid(const std::string &path, const std::string &selector,
+                        bool fog_level_sets = true);
+
+/// Grid `index` of the NanoVDB file at `path`, a level set, made a fog
+/// volume as vdb2nvdb makes one (in the reader process: the conversion
+/// needs OpenVDB). `name` is the grid's name as the caller's listing has
+/// it: a reply for another grid is refused.
+VdbGrid import_nvdb_level_set_as_fog(const std::string &path, uint32_t index,
+                                     const std::string &name);
+
+/// Every grid of the .vdb file at `path` (names, types, classes; no voxels),
+/// read by the reader process: a damaged file is an Error, never a crash.
+std::vector<VdbGridInfo> list_vdb_grids(const std::string &path);
 
 } // namespace nanovdb_loader

@@ -4,8 +4,10 @@
         [--grid NAME] [--spp 64] [--res 256] [--variant llvm_ad_rgb]
         [--integrator volpathlocal] [--scale S] [--filter trilinear]
 
-A .vdb is converted first (vdb2nvdb, into a temporary file; level sets become
-fog volumes). The volume stays in its own world space (use_grid_transform)
+The file goes straight to nanovdbvolume (files.py): only the grids rendered
+are read, a .vdb through the plugin's reader process, and a level set
+(.vdb or .nvdb) becomes a fog volume (level_set="fog"); no converter runs
+and no temporary file is written. The volume stays in its own world space (use_grid_transform)
 inside a null-BSDF box fitted to it, framed by a camera and lit by a sky and
 a sun (scene.py). The density scale defaults to a mean optical depth of
 about 8 across the box (from the plugin's per-node bounds), and is printed. The render runs in passes with a
@@ -14,19 +16,15 @@ progress bar; the image is written as PNG (sRGB, 8 bit) and EXR (linear).
 installing: PYTHONPATH=python python3 -m nanovdb_mitsuba.render ...
 """
 import argparse
-import functools
 import os
-import subprocess
 import sys
-import tempfile
 import time
 
 if __package__ in (None, ""):  # run as a file: python3 python/nanovdb_mitsuba/render.py
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     __package__ = "nanovdb_mitsuba"
 
-from nanovdb_mitsuba import fire, sequence, setup, vdb2nvdb  # noqa: E402
-from nanovdb_mitsuba.facts import volume_facts  # noqa: E402
+from nanovdb_mitsuba import files, fire, sequence, setup  # noqa: E402
 from nanovdb_mitsuba.scene import framed_scene  # noqa: E402
 
 
@@ -42,52 +40,6 @@ def progress(done, total, started, out=sys.stderr):
         out.write("\n")
 
 
-def convert(path, grids, tmpdir):
-    """A .vdb through vdb2nvdb: only the grids named in `grids`, or all of
-    them when it is empty"""
-    out = os.path.join(tmpdir, os.path.splitext(os.path.basename(path))[0] + ".nvdb")
-    cmd = [vdb2nvdb(), path, out, "--verify", "0"]
-    for g in grids:
-        cmd += ["--grid", g]
-    r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    if r.returncode != 0:
-        # vdb2nvdb's last line is its error; the notes before it go first
-        lines = r.stdout.strip().splitlines() or [f"vdb2nvdb failed ({r.returncode})"]
-        for note in lines[:-1]:
-            print(note, file=sys.stderr)
-        raise SystemExit(f"nanovdb-render: {lines[-1]}")
-    return out
-
-
-@functools.lru_cache(maxsize=8)
-def _grid_rows(path, _mtime_ns, _size):
-    r = subprocess.run([vdb2nvdb(), "--list", path], stdout=subprocess.PIPE,
-                       stderr=subprocess.STDOUT, text=True)
-    return tuple(sequence.parse_list(r.stdout))
-
-
-def grid_rows(path):
-    """[(name, type)] of a .nvdb or .vdb file's grids, in file order, as
-    vdb2nvdb --list shows them (type "float", "vec3s", ...)"""
-    st = os.stat(path)
-    return list(_grid_rows(path, st.st_mtime_ns, st.st_size))
-
-
-def grid_names(path):
-    """The names of a .nvdb or .vdb file's grids, in file order (vdb2nvdb --list)"""
-    return [name for name, _ in grid_rows(path)]
-
-
-def volume_properties(volume, path):
-    """A loaded nanovdbvolume's facts (nanovdb_mitsuba.volume_facts), with
-    "grid", the name of its grid in `path`"""
-    facts = volume_facts(volume)
-    index = facts["grid_index"]
-    names = grid_names(path) if index is not None else []
-    facts["grid"] = names[index] if index is not None and index < len(names) else ""
-    return facts
-
-
 def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
                 integrator="volpathlocal", scale=None, filter_type="trilinear", passes=None,
                 quiet=False, emission_grid=None, emission_mode=None, temperature_scale=None,
@@ -101,126 +53,115 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
     import drjit as dr
     mi.set_variant(variant)
     setup(mi)
-    with tempfile.TemporaryDirectory() as tmp:
-        # The density: --grid, else a grid named "density", else the
-        # first float grid (nanovdbvolume's choice without a name)
-        rows = grid_rows(path)
-        density = fire.default_density(rows)
-        if grid:
-            density = rows[int(grid)][0] if grid.isdigit() and int(grid) < len(rows) else grid
-        by_name = grid or (density if density.lower() == "density" else "")
-        found = fire.emission_candidates([n for n, _ in rows], exclude=density)
-        chosen, mode = fire.choose(path, rows, density, emission_grid, emission_mode)
-        if chosen and integrator != "volpathlocal":
-            raise SystemExit(f"nanovdb-render: {path}: grid \"{chosen}\" emits light, which "
-                             f"only the volpathlocal integrator renders, not {integrator}; "
-                             "leave --integrator out, or add --no-emission")
-        if path.lower().endswith(".vdb"):
-            # Only the grids rendered, into a temporary .nvdb: the density
-            # (its first float grid), and the emission's beside it
-            if chosen:
-                grids = [density] if chosen == density else [density, chosen]
-                by_name = density
-            else:
-                grids, by_name = ([by_name] if by_name else []), ""
-            nvdb = convert(path, grids, tmp)
-        else:
-            nvdb = path
-        emission_file = nvdb
-        kw = dict(scale=scale, res=res, spp=spp, integrator=integrator, filter_type=filter_type)
-        scene_dict, info = framed_scene(mi, nvdb, grid=by_name, **kw)
-        props = volume_properties(info["volume"], nvdb)
-        if nvdb == path and props.get("grid_class") == "level set":
-            # A .nvdb level set: signed distances, not a density. Made a fog
-            # volume as a .vdb's level set is (vdb2nvdb reads .nvdb too)
-            if not quiet:
-                print(f"{path}: grid \"{props.get('grid')}\" is a level set: rendering it as a "
-                      "fog volume (vdb2nvdb, into a temporary file)")
-            del scene_dict, info
-            level_set = props
-            nvdb = convert(path, [props["grid"]] if props.get("grid") else [], tmp)
-            scene_dict, info = framed_scene(mi, nvdb, **kw)
-            props = volume_properties(info["volume"], nvdb)
-            if props["max"] == 0 and level_set["max"] != 0:
-                # No inside: e.g. a "level set" whose background (the band's
-                # width) is 0. Its values as densities, negative ones as 0
+    # The density: --grid, else a grid named "density", else the
+    # first float grid (nanovdbvolume's choice without a name)
+    rows = files.grid_rows(path)
+    density = fire.default_density(rows)
+    if grid:
+        density = rows[int(grid)][0] if grid.isdigit() and int(grid) < len(rows) else grid
+    by_name = grid or (density if density.lower() == "density" else "")
+    found = fire.emission_candidates([n for n, _ in rows], exclude=density)
+    chosen, mode = fire.choose(path, rows, density, emission_grid, emission_mode)
+    if chosen and integrator != "volpathlocal":
+        raise SystemExit(f"nanovdb-render: {path}: grid \"{chosen}\" emits light, which "
+                         f"only the volpathlocal integrator renders, not {integrator}; "
+                         "leave --integrator out, or add --no-emission")
+    if chosen:
+        by_name = density
+    # The file itself, to nanovdbvolume: only this grid is read, a level
+    # set made a fog volume (level_set="fog", .vdb and .nvdb alike)
+    volume = files.load_volume(mi, path, by_name, filter_type)
+    props = files.volume_properties(volume, path)
+    level_set_values = False
+    if props["level_set_fogged"]:
+        if not quiet:
+            print(f"{path}: grid \"{props.get('grid')}\" is a level set: rendering it as a "
+                  "fog volume (nanovdbvolume's level_set=\"fog\")")
+        if props["max"] == 0:
+            # No inside: e.g. a "level set" whose background (the band's
+            # width) is 0. Its values as densities, negative ones as 0
+            distances = files.load_volume(mi, path, by_name, filter_type,
+                                          level_set="distance", invalid_values="clamp")
+            dprops = files.volume_properties(distances, path)
+            if dprops["max"] != 0:
                 print(f"{path}: the level set's fog volume is empty (background "
-                      f"{level_set['background']:g}: no inside to fill); rendering its values "
+                      f"{dprops['background']:g}: no inside to fill); rendering its values "
                       "as densities instead, negative ones as 0")
-                del scene_dict, info
-                nvdb = path
-                scene_dict, info = framed_scene(mi, path, grid=level_set.get("grid"),
-                                                invalid_values="clamp", **kw)
-                props = volume_properties(info["volume"], nvdb)
-                info["level_set_values"] = True
-        if not quiet and props["index_dims"] == [1, 1, 1] and props["max"] == 0:
-            print(f"{path}: grid \"{props.get('grid')}\" holds no active voxels and a zero "
-                  "background: the image shows only the lights")
-        if props.get("grid_type") == "Vec3f":
-            if not grid:  # the file's first renderable grid, not the user's choice
-                raise SystemExit(
-                    f"nanovdb-render: {path}: its first grid, \"{props.get('grid')}\", is a Vec3f "
-                    "grid (a colour or a vector), not a density; choose a scalar grid with "
-                    f"--grid, or --grid {props.get('grid') or 0} to render this one as a colour "
-                    "extinction (one density per RGB channel)")
-            if not quiet:
-                print(f"{path}: grid \"{props.get('grid')}\" is a Vec3f grid: rendered as a "
-                      "colour extinction (one density per RGB channel)")
-        info["emission"] = None
-        if chosen or found:
-            # A fire's smoke: the same albedo with its emission or without
-            # it (--no-emission), so that the two differ only by the glow
-            interior = scene_dict["box"]["interior"]
-            interior["albedo"] = {"type": "rgb", "value": [fire.FIRE_ALBEDO] * 3}
-        if found and not quiet and not chosen:
-            listed = ", ".join(f'"{n}"' for n in found)
-            print(f"{path}: emission grids {listed}: not rendered (--no-emission); albedo "
-                  f"{fire.FIRE_ALBEDO:g}")
-        if chosen:
-            info["emission"] = add_emission(
-                mi, scene_dict, path, emission_file, chosen, mode, found, filter_type,
-                dict(temperature_scale=temperature_scale, temperature_offset=temperature_offset,
-                     emission_scale=emission_scale), quiet)
+                volume, props, level_set_values = distances, dprops, True
+            del distances
+    kw = dict(scale=scale, res=res, spp=spp, integrator=integrator, filter_type=filter_type)
+    scene_dict, info = framed_scene(mi, path, grid=by_name, volume=volume, **kw)
+    del volume
+    if level_set_values:
+        info["level_set_values"] = True
+    if not quiet and props["index_dims"] == [1, 1, 1] and props["max"] == 0:
+        print(f"{path}: grid \"{props.get('grid')}\" holds no active voxels and a zero "
+              "background: the image shows only the lights")
+    if props.get("grid_type") == "Vec3f":
+        if not grid:  # the file's first renderable grid, not the user's choice
+            raise SystemExit(
+                f"nanovdb-render: {path}: its first grid, \"{props.get('grid')}\", is a Vec3f "
+                "grid (a colour or a vector), not a density; choose a scalar grid with "
+                f"--grid, or --grid {props.get('grid') or 0} to render this one as a colour "
+                "extinction (one density per RGB channel)")
         if not quiet:
-            bmin, bmax = info["bbox_min"], info["bbox_max"]
-            print(f"{path}: world bbox [{', '.join(f'{v:g}' for v in bmin)}] .. "
-                  f"[{', '.join(f'{v:g}' for v in bmax)}]; density scale {info['scale']:.6g}"
-                  f"{' (default: mean optical depth ~8; change it with --scale)' if scale is None else ''}")
-        scene = mi.load_dict(scene_dict)
-        # Passes of a few samples each: a progress bar, and the same image
-        # as one render of `spp` samples per pixel in expectation
-        passes = passes or max(1, min(16, spp // 4))
-        per = [spp // passes + (1 if i < spp % passes else 0) for i in range(passes)]
-        acc = None
-        started = time.perf_counter()
-        for i, n in enumerate(per):
-            img = mi.render(scene, spp=n, seed=i)
-            dr.eval(img)
-            a = np.array(img) * n
-            acc = a if acc is None else acc + a
-            if not quiet:
-                progress(i + 1, passes, started)
-        image = (acc / spp).astype(np.float32)
-        bitmap = mi.Bitmap(image)
-        exr = os.path.splitext(out)[0] + ".exr"
-        bitmap.write(exr)
-        bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True).write(out)
-        info["seconds"] = time.perf_counter() - started
-        info["grid_class"] = props.get("grid_class")
-        info["grid"] = props.get("grid")
-        info.pop("volume", None)
+            print(f"{path}: grid \"{props.get('grid')}\" is a Vec3f grid: rendered as a "
+                  "colour extinction (one density per RGB channel)")
+    info["emission"] = None
+    if chosen or found:
+        # A fire's smoke: the same albedo with its emission or without
+        # it (--no-emission), so that the two differ only by the glow
+        interior = scene_dict["box"]["interior"]
+        interior["albedo"] = {"type": "rgb", "value": [fire.FIRE_ALBEDO] * 3}
+    if found and not quiet and not chosen:
+        listed = ", ".join(f'"{n}"' for n in found)
+        print(f"{path}: emission grids {listed}: not rendered (--no-emission); albedo "
+              f"{fire.FIRE_ALBEDO:g}")
+    if chosen:
+        info["emission"] = add_emission(
+            mi, scene_dict, path, chosen, mode, found, filter_type,
+            dict(temperature_scale=temperature_scale, temperature_offset=temperature_offset,
+                 emission_scale=emission_scale), quiet)
+    if not quiet:
+        bmin, bmax = info["bbox_min"], info["bbox_max"]
+        print(f"{path}: world bbox [{', '.join(f'{v:g}' for v in bmin)}] .. "
+              f"[{', '.join(f'{v:g}' for v in bmax)}]; density scale {info['scale']:.6g}"
+              f"{' (default: mean optical depth ~8; change it with --scale)' if scale is None else ''}")
+    scene = mi.load_dict(scene_dict)
+    # Passes of a few samples each: a progress bar, and the same image
+    # as one render of `spp` samples per pixel in expectation
+    passes = passes or max(1, min(16, spp // 4))
+    per = [spp // passes + (1 if i < spp % passes else 0) for i in range(passes)]
+    acc = None
+    started = time.perf_counter()
+    for i, n in enumerate(per):
+        img = mi.render(scene, spp=n, seed=i)
+        dr.eval(img)
+        a = np.array(img) * n
+        acc = a if acc is None else acc + a
         if not quiet:
-            print(f"wrote {out} and {exr} ({res}x{res}, {spp} spp, {variant}, {integrator}) "
-                  f"in {info['seconds']:.1f} s")
-        return image, info
+            progress(i + 1, passes, started)
+    image = (acc / spp).astype(np.float32)
+    bitmap = mi.Bitmap(image)
+    exr = os.path.splitext(out)[0] + ".exr"
+    bitmap.write(exr)
+    bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True).write(out)
+    info["seconds"] = time.perf_counter() - started
+    info["grid_class"] = props.get("grid_class")
+    info["grid"] = props.get("grid")
+    info.pop("volume", None)
+    if not quiet:
+        print(f"wrote {out} and {exr} ({res}x{res}, {spp} spp, {variant}, {integrator}) "
+              f"in {info['seconds']:.1f} s")
+    return image, info
 
 
-def add_emission(mi, scene_dict, path, nvdb, name, mode, found, filter_type, overrides, quiet):
-    """Makes scene_dict's medium glow with grid `name` of `nvdb` (fire.py
+def add_emission(mi, scene_dict, path, name, mode, found, filter_type, overrides, quiet):
+    """Makes scene_dict's medium glow with grid `name` of `path` (fire.py
     picks the scales from the loaded grid's max()); says what it chose.
     Returns what it rendered (a dict), or None where the grid cannot emit
     (empty, or never hot enough): then the scene stays as it was."""
-    rendered, summary, why_not = fire.add_emission(mi, scene_dict, nvdb, name, mode, filter_type,
+    rendered, summary, why_not = fire.add_emission(mi, scene_dict, path, name, mode, filter_type,
                                                    **overrides)
     listed = ", ".join(f'"{n}"' for n in found) or "none by name"
     if rendered is None:
@@ -296,12 +237,10 @@ def main(argv=None):
                     emission_grid=a.emission_grid, emission_mode=a.emission_mode,
                     temperature_scale=a.temperature_scale,
                     temperature_offset=a.temperature_offset, emission_scale=a.emission_scale)
-    except RuntimeError as e:
-        # Mitsuba's messages already name the file and the problem; drop
-        # its source location prefix ("[parser.cpp:1718] ...")
-        msg = str(e)
-        inner = msg.rsplit("[NanoVDBVolume] ", 1)[-1]
-        raise SystemExit(f"nanovdb-render: {inner.strip()}")
+    except RuntimeError as e:  # (files.FileError too)
+        # The messages already name the file and the problem; Mitsuba's
+        # lose their source location prefix ("[parser.cpp:1718] ...")
+        raise SystemExit(f"nanovdb-render: {files.plugin_message(e)}")
 
 
 if __name__ == "__main__":

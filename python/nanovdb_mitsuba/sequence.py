@@ -39,12 +39,10 @@ import json
 import os
 import re
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 
-from nanovdb_mitsuba import fire, setup, vdb2nvdb
+from nanovdb_mitsuba import files, fire, setup
 from nanovdb_mitsuba.facts import volume_facts
 from nanovdb_mitsuba.scene import default_scale, framed_scene
 
@@ -160,48 +158,22 @@ def shard_frames(frames, shard):
     return frames[i::n]
 
 
-# The frames' files: vdb2nvdb lists and converts them
+# The frames' files: listed and loaded as files.py reads them (nanovdbvolume
+# on the file itself: no converter, no temporary file)
 
 def list_grids(path):
-    """[(name, type)] of a file's grids, as vdb2nvdb --list shows them;
-    FrameError if it cannot read the file"""
-    r = subprocess.run([vdb2nvdb(), "--list", path], stdout=subprocess.PIPE,
-                       stderr=subprocess.STDOUT, text=True)
-    if r.returncode != 0:
-        lines = r.stdout.strip().splitlines() or [f"vdb2nvdb --list failed ({r.returncode})"]
-        raise FrameError(lines[-1])
-    return parse_list(r.stdout)
-
-
-def parse_list(text):
-    """[(name, type)] of the grid rows of vdb2nvdb --list's output"""
-    rows = []
-    for line in text.splitlines():
-        m = re.match(r'^\s+(\d+)\s+"(.*)"\s+(\S+)', line)
-        if m and int(m.group(1)) == len(rows):
-            rows.append((m.group(2), m.group(3)))
-    return rows
+    """[(name, type)] of a file's grids (files.grid_rows); FrameError with
+    the message, which names the file, if it cannot be read"""
+    try:
+        return files.grid_rows(path)
+    except files.FileError as e:
+        raise FrameError(str(e))
 
 
 def default_grid(rows):
     """The grid nanovdb-render renders of a file: fire.default_density's
     choice, else the first grid"""
     return fire.default_density(rows) or (rows[0][0] if rows else "")
-
-
-def convert(path, grid, tmpdir):
-    """Grid `grid` (a name, or a list of names) of `path` into a .nvdb in
-    tmpdir (vdb2nvdb: a level set becomes a fog volume); FrameError with
-    vdb2nvdb's message"""
-    out = os.path.join(tmpdir, os.path.basename(path) + ".nvdb")
-    cmd = [vdb2nvdb(), path, out, "--verify", "0"]
-    for g in ([grid] if isinstance(grid, str) else grid):
-        cmd += ["--grid", g]
-    r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    if r.returncode != 0:
-        lines = r.stdout.strip().splitlines() or [f"vdb2nvdb failed ({r.returncode})"]
-        raise FrameError(lines[-1])
-    return out
 
 
 def resolve(rows, name):
@@ -214,42 +186,30 @@ def resolve(rows, name):
     return folded[0] if len(folded) == 1 else None
 
 
-def load_frame(mi, path, grid, tmpdir, filter_type="trilinear", emission=None, rows=None):
-    """(status, why, volume, nvdb, emission_name) of one frame: status "ok"
-    (volume loaded, nvdb the file it reads), "empty" (no such grid, or no
-    positive value) or "missing"; FrameError where the file cannot be read.
-    emission: the sequence's emission grid, converted beside the density;
+def load_frame(mi, path, grid, filter_type="trilinear", emission=None, rows=None):
+    """(status, why, volume, emission_name) of one frame: status "ok"
+    (volume loaded from `path` itself, a level set made a fog volume),
+    "empty" (no such grid, or no positive value) or "missing"; FrameError
+    where the file cannot be read. emission: the sequence's emission grid;
     emission_name is its name in this file, None where the file lacks it.
     rows: the file's grids, if already listed."""
     if not os.path.exists(path):
-        return "missing", "no such file", None, None, None
+        return "missing", "no such file", None, None
     rows = list_grids(path) if rows is None else rows
     if grid not in [n for n, _ in rows]:
         listed = ", ".join(f'"{n}"' for n, _ in rows) or "no grids"
-        return "empty", f'no grid "{grid}" (the file holds {listed})', None, None, None
+        return "empty", f'no grid "{grid}" (the file holds {listed})', None, None
     ename = resolve(rows, emission) if emission else None
-    grids = [grid] + ([ename] if ename and ename != grid else [])
-    nvdb = convert(path, grids, tmpdir) if path.lower().endswith(".vdb") else path
-
-    def load(f):
-        try:
-            return mi.load_dict({"type": "nanovdbvolume", "filename": f, "grid": grid,
-                                 "use_grid_transform": True, "filter_type": filter_type})
-        except RuntimeError as e:
-            raise FrameError(str(e).rsplit("[NanoVDBVolume] ", 1)[-1].strip())
-    volume = load(nvdb)
+    try:
+        volume = files.load_volume(mi, path, grid, filter_type)
+    except files.FileError as e:
+        raise FrameError(str(e))
     facts = volume_facts(volume)
-    if facts["grid_class"] == "level set" and nvdb == path:
-        # A .nvdb level set: made a fog volume, as a .vdb's is
-        del volume
-        nvdb = convert(path, grids, tmpdir)
-        volume = load(nvdb)
-        facts = volume_facts(volume)
     if not facts["max"] > 0.0:
         why = ("holds no active voxels" if facts["index_dims"] == [1, 1, 1]
                else "holds no positive density")
-        return "empty", f'grid "{grid}" {why}', None, None, ename
-    return "ok", "", volume, nvdb, ename
+        return "empty", f'grid "{grid}" {why}', None, ename
+    return "ok", "", volume, ename
 
 
 # The plan: what every shard must agree on
@@ -359,38 +319,36 @@ def scan(mi, pattern, frames, grid="", scale=None, filter_type="trilinear", log=
         pattern, rows_by_frame, grid, options["emission_grid"], options["emission_mode"])
     entries = []
     started = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        for i, f in enumerate(frames):
-            entry = {"frame": f, "file": pattern.path(f)}
-            try:
-                status, why, volume, nvdb, held = load_frame(
-                    mi, entry["file"], grid, tmp, filter_type, emission=ename,
-                    rows=rows_by_frame.get(f))
-            except FrameError as e:
-                status, why, volume, nvdb, held = "error", str(e), None, None, None
-            entry["status"] = status
-            if why:
-                entry["why"] = why
-            if volume is not None:
-                bb = volume.bbox()
-                entry["bbox_min"] = [float(x) for x in bb.min]
-                entry["bbox_max"] = [float(x) for x in bb.max]
-                entry["scale"] = float(default_scale(volume))
-                if ename and not held:
-                    entry["emission_why"] = f'no grid "{ename}"'
-                elif held:
-                    # The emission grid's max (an upper bound of its lookups)
-                    ev = volume if held == grid else mi.load_dict(
-                        {"type": "nanovdbvolume", "filename": nvdb, "grid": held,
-                         "use_grid_transform": True, "filter_type": filter_type})
+    for i, f in enumerate(frames):
+        entry = {"frame": f, "file": pattern.path(f)}
+        try:
+            status, why, volume, held = load_frame(mi, entry["file"], grid, filter_type,
+                                                   emission=ename, rows=rows_by_frame.get(f))
+        except FrameError as e:
+            status, why, volume, held = "error", str(e), None, None
+        entry["status"] = status
+        if why:
+            entry["why"] = why
+        if volume is not None:
+            bb = volume.bbox()
+            entry["bbox_min"] = [float(x) for x in bb.min]
+            entry["bbox_max"] = [float(x) for x in bb.max]
+            entry["scale"] = float(default_scale(volume))
+            if ename and not held:
+                entry["emission_why"] = f'no grid "{ename}"'
+            elif held:
+                # The emission grid's max (an upper bound of its lookups)
+                try:
+                    ev = volume if held == grid else files.load_volume(mi, entry["file"], held,
+                                                                       filter_type)
                     entry["emission_max"] = float(volume_facts(ev)["max"])
                     del ev
-                del volume
-                if nvdb != entry["file"]:
-                    os.remove(nvdb)
-            entries.append(entry)
-            if len(frames) > 20 and (i + 1) % 20 == 0:
-                log(f"scanned {i + 1}/{len(frames)} frames, {time.perf_counter() - started:.1f} s")
+                except files.FileError as e:
+                    entry["emission_why"] = str(e)
+            del volume
+        entries.append(entry)
+        if len(frames) > 20 and (i + 1) % 20 == 0:
+            log(f"scanned {i + 1}/{len(frames)} frames, {time.perf_counter() - started:.1f} s")
     ok = [e for e in entries if e["status"] == "ok"]
     if not ok:
         raise SystemExit(f"nanovdb-render: {pattern.text}: none of the {len(frames)} frames "
@@ -510,9 +468,9 @@ def frame_scene(mi, plan, volume_file, res, spp, integrator, filter_type, emissi
 
 def scene_json(scene, entry, grid, emission_grid=None):
     """A scene dict as JSON text (sorted keys): transforms as their
-    matrices, the volumes as the frame's file and grid (not the temporary
-    .nvdb it was converted into; the emission's, under "temperature" or
-    "emission", as emission_grid), so that shards compare byte for byte"""
+    matrices, the volumes as the frame's file and grid (the emission's,
+    under "temperature" or "emission", as emission_grid), so that shards
+    compare byte for byte"""
     import numpy as np
 
     def plain(v, key=None):
@@ -660,56 +618,52 @@ def render_sequence(spec, output=None, frames=None, shard=None, plan_path=None, 
             " (--overwrite renders them again)")
     started = time.perf_counter()
     times = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for i, entry in enumerate(todo):
-            f = entry["frame"]
-            t0 = time.perf_counter()
-            head = f"frame {f} [{i + 1}/{len(todo)}]"
-            # The file as it is now, on this machine (the plan may be older)
-            path = pattern.path(f)
-            try:
-                status, why, volume, nvdb, held = load_frame(
-                    mi, path, plan["grid"], tmp, filter_type,
-                    emission=glow["grid"] if glow else None)
-            except FrameError as e:
-                status, why, volume, nvdb, held = "error", str(e), None, None, None
-            if status in ("missing", "error"):
-                result["missing" if status == "missing" else "failed"].append(f)
-                log(f"{head}: {path}: {why}: skipped, no image written")
-                continue
-            scene, info = frame_scene(mi, plan, nvdb if status == "ok" else None, res, spp,
-                                      integrator, filter_type,
-                                      emission_grid=held if glow and held else "none",
-                                      volume=volume if status == "ok" else None)
-            del volume
-            dark = None  # why this frame renders without its emission
-            if glow and status == "ok":
-                if not held:
-                    dark = f'no grid "{glow["grid"]}"'
-                elif info.get("emission") is None:
-                    dark = f'grid "{held}" is empty: {info.get("emission_why_not", "")}'
-            if dark:
-                result["no_emission"][f] = dark
-            png = outpat.path(f)
-            if scene_json_dir is not None:
-                name = os.path.splitext(os.path.basename(png))[0] + ".scene.json"
-                with open(os.path.join(scene_json_dir, name), "w") as fh:
-                    fh.write(scene_json(scene, dict(entry, file=path), plan["grid"], held))
-            img = mi.render(mi.load_dict(scene), spp=spp, seed=f)
-            dr.eval(img)
-            write_frame(mi, np.array(img, dtype=np.float32), png)
-            del scene, info, img
-            if nvdb and nvdb != path:
-                os.remove(nvdb)
-            dt = time.perf_counter() - t0
-            times.append(dt)
-            left = len(todo) - i - 1
-            eta = sum(times) / len(times) * left
-            what = "" if status == "ok" else f" ({why}: the sky and the sun only)"
-            if dark:
-                what = f" (without emission: {dark})"
-            result["rendered" if status == "ok" else "empty"].append(f)
-            log(f"{head}: wrote {png}{what} in {dt:.1f} s; {left} to go, about {eta:.0f} s left")
+    for i, entry in enumerate(todo):
+        f = entry["frame"]
+        t0 = time.perf_counter()
+        head = f"frame {f} [{i + 1}/{len(todo)}]"
+        # The file as it is now, on this machine (the plan may be older)
+        path = pattern.path(f)
+        try:
+            status, why, volume, held = load_frame(mi, path, plan["grid"], filter_type,
+                                                   emission=glow["grid"] if glow else None)
+        except FrameError as e:
+            status, why, volume, held = "error", str(e), None, None
+        if status in ("missing", "error"):
+            result["missing" if status == "missing" else "failed"].append(f)
+            log(f"{head}: {path}: {why}: skipped, no image written")
+            continue
+        scene, info = frame_scene(mi, plan, path if status == "ok" else None, res, spp,
+                                  integrator, filter_type,
+                                  emission_grid=held if glow and held else "none",
+                                  volume=volume if status == "ok" else None)
+        del volume
+        dark = None  # why this frame renders without its emission
+        if glow and status == "ok":
+            if not held:
+                dark = f'no grid "{glow["grid"]}"'
+            elif info.get("emission") is None:
+                dark = f'grid "{held}" is empty: {info.get("emission_why_not", "")}'
+        if dark:
+            result["no_emission"][f] = dark
+        png = outpat.path(f)
+        if scene_json_dir is not None:
+            name = os.path.splitext(os.path.basename(png))[0] + ".scene.json"
+            with open(os.path.join(scene_json_dir, name), "w") as fh:
+                fh.write(scene_json(scene, dict(entry, file=path), plan["grid"], held))
+        img = mi.render(mi.load_dict(scene), spp=spp, seed=f)
+        dr.eval(img)
+        write_frame(mi, np.array(img, dtype=np.float32), png)
+        del scene, info, img
+        dt = time.perf_counter() - t0
+        times.append(dt)
+        left = len(todo) - i - 1
+        eta = sum(times) / len(times) * left
+        what = "" if status == "ok" else f" ({why}: the sky and the sun only)"
+        if dark:
+            what = f" (without emission: {dark})"
+        result["rendered" if status == "ok" else "empty"].append(f)
+        log(f"{head}: wrote {png}{what} in {dt:.1f} s; {left} to go, about {eta:.0f} s left")
     result["seconds"] = time.perf_counter() - started
     n = len(result["rendered"]) + len(result["empty"])
     log(f"rendered {n} frames in {result['seconds']:.1f} s ({res}x{res}, {spp} spp, {variant})"
@@ -815,8 +769,8 @@ def handles(a, ap):
                         filter_type=a.filter, scene_json_dir=a.scene_json,
                         log=lambda s: print(s, flush=True),
                         **{k: getattr(a, k, None) for k in EMISSION_OPTIONS})
-    except RuntimeError as e:
-        raise SystemExit(f"nanovdb-render: {str(e).rsplit('] ', 1)[-1].strip()}")
+    except RuntimeError as e:  # (files.FileError too)
+        raise SystemExit(f"nanovdb-render: {files.plugin_message(e)}")
     return True
 
 

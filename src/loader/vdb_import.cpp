@@ -1,5 +1,6 @@
-// An OpenVDB file's grid as NanoVDB bytes, read in a separate process
-// (see nanovdb_loader/vdb_import.h).
+// An OpenVDB file's grid as NanoVDB bytes, or its list of grids, or a
+// NanoVDB level set made a fog volume, read in a separate process (see
+// nanovdb_loader/vdb_import.h).
 //
 // Why a process: OpenVDB's reader trusts its stream. Damaged files were
 // seen to reach malloc and free with garbage sizes ("malloc(): invalid
@@ -61,10 +62,21 @@ bool is_vdb_path(const std::string &path) {
 
 bool vdb_import_available() { return false; }
 
-VdbGrid import_vdb_grid(const std::string &path, const std::string &) {
+VdbGrid import_vdb_grid(const std::string &path, const std::string &, bool) {
     throw Error("\"" + path + "\": an OpenVDB file, and this build of nanovdbvolume has no "
                 "OpenVDB: convert it with vdb2nvdb, or install libopenvdb-dev (and "
                 "libboost-dev libtbb-dev libimath-dev) and rebuild");
+}
+
+VdbGrid import_nvdb_level_set_as_fog(const std::string &path, uint32_t, const std::string &) {
+    throw Error("\"" + path + "\": a level set made a fog volume needs OpenVDB, which this "
+                "build of nanovdbvolume lacks: set level_set=\"distance\", or install "
+                "libopenvdb-dev (and libboost-dev libtbb-dev libimath-dev) and rebuild");
+}
+
+std::vector<VdbGridInfo> list_vdb_grids(const std::string &path) {
+    import_vdb_grid(path, "");
+    return {};
 }
 
 #else
@@ -240,9 +252,20 @@ Transfer transfer(int reply_fd, int err_fd, uint64_t cap, Clock::time_point dead
     return t;
 }
 
-} // namespace
+/// A checked reply of the reader: its header, the bytes after it (name,
+/// message, payload), and the time from start to reply
+struct Answer {
+    rd::Reply r;
+    std::vector<uint8_t> bytes;
+    double seconds = 0;
+    const char *text() const { return (const char *) bytes.data() + sizeof r; }
+    size_t payload_offset() const { return sizeof r + r.name_bytes + r.message_bytes; }
+};
 
-VdbGrid import_vdb_grid(const std::string &path, const std::string &selector) {
+/// Starts the reader on `args` (about the file `path`) and waits for its
+/// reply; every way it can fail (no start, a crash, a timeout, a malformed
+/// or oversized reply, an error it reports) is an Error naming the file
+Answer ask_reader(const std::string &path, const std::vector<std::string> &args) {
     const std::string label = "\"" + path + "\"";
     std::error_code ec;
     if (!fs::is_regular_file(path, ec))
@@ -265,9 +288,10 @@ VdbGrid import_vdb_grid(const std::string &path, const std::string &selector) {
     posix_spawn_file_actions_adddup2(&actions, err_w.fd, 1);
     posix_spawn_file_actions_adddup2(&actions, err_w.fd, 2);
     posix_spawn_file_actions_adddup2(&actions, reply_w.fd, rd::kReplyFd);
-    std::vector<char *> argv = { const_cast<char *>(reader.c_str()),
-                                 const_cast<char *>(path.c_str()),
-                                 const_cast<char *>(selector.c_str()), nullptr };
+    std::vector<char *> argv = { const_cast<char *>(reader.c_str()) };
+    for (const std::string &a : args)
+        argv.push_back(const_cast<char *>(a.c_str()));
+    argv.push_back(nullptr);
     Child child;
     int rc = ::posix_spawn(&child.pid, reader.c_str(), &actions, nullptr, argv.data(), environ);
     posix_spawn_file_actions_destroy(&actions);
@@ -315,21 +339,73 @@ VdbGrid import_vdb_grid(const std::string &path, const std::string &selector) {
     if (r.status != rd::Status::Ok)
         throw Error(printable_text(std::string(text + r.name_bytes, r.message_bytes)));
 
+    Answer answer{ r, std::move(t.reply), seconds };
+    return answer;
+}
+
+/// The grid a reply carries
+VdbGrid grid_of(Answer &&a) {
     VdbGrid out;
-    out.name = printable_text(std::string(text, r.name_bytes));
-    out.index = r.index;
-    out.source_class = r.source_class;
-    out.fogged = r.fogged != 0;
-    out.read_seconds = r.read_seconds;
-    out.convert_seconds = r.convert_seconds;
-    out.reader_seconds = seconds;
-    out.reader_peak_bytes = r.peak_bytes;
-    out.size = size_t(r.grid_bytes);
+    out.name = printable_text(std::string(a.text(), a.r.name_bytes));
+    out.index = a.r.index;
+    out.source_class = a.r.source_class;
+    out.fogged = a.r.fogged != 0;
+    out.read_seconds = a.r.read_seconds;
+    out.convert_seconds = a.r.convert_seconds;
+    out.reader_seconds = a.seconds;
+    out.reader_peak_bytes = a.r.peak_bytes;
+    out.size = size_t(a.r.grid_bytes);
     // The grid bytes stay in the reply's vector (no second copy); the
     // plugin copies them once, into the block its backend owns
-    auto owner = std::make_shared<std::vector<uint8_t>>(std::move(t.reply));
-    const size_t offset = sizeof r + r.name_bytes + r.message_bytes;
+    const size_t offset = a.payload_offset();
+    auto owner = std::make_shared<std::vector<uint8_t>>(std::move(a.bytes));
     out.data = std::shared_ptr<const uint8_t>(owner, owner->data() + offset);
+    return out;
+}
+
+} // namespace
+
+VdbGrid import_vdb_grid(const std::string &path, const std::string &selector,
+                        bool fog_level_sets) {
+    std::vector<std::string> args = { path, selector };
+    if (!fog_level_sets)
+        args.push_back("--keep-level-sets");
+    return grid_of(ask_reader(path, args));
+}
+
+VdbGrid import_nvdb_level_set_as_fog(const std::string &path, uint32_t index,
+                                     const std::string &name) {
+    VdbGrid g = grid_of(ask_reader(path, { "--fog-nvdb", path, std::to_string(index) }));
+    // NanoVDB's reader and ours must agree on which grid is `index`
+    if (g.name != printable_text(name))
+        throw Error("\"" + path + "\": the .vdb reader read grid " + std::to_string(index) +
+                    " as \"" + g.name + "\", not \"" + printable_text(name) +
+                    "\": NanoVDB's reader counts this file's grids differently");
+    return g;
+}
+
+std::vector<VdbGridInfo> list_vdb_grids(const std::string &path) {
+    Answer a = ask_reader(path, { "--list", path });
+    const std::string label = "\"" + path + "\"";
+    std::vector<VdbGridInfo> out;
+    size_t at = a.payload_offset();
+    for (uint32_t i = 0; i < a.r.entries; ++i) {
+        rd::ListEntry e;
+        if (a.bytes.size() - at < sizeof e)
+            throw Error(label + ": the .vdb reader sent a malformed listing");
+        std::memcpy(&e, a.bytes.data() + at, sizeof e);
+        at += sizeof e;
+        if (e.name_bytes > rd::kMaxText || e.type_bytes > rd::kMaxText ||
+            a.bytes.size() - at < uint64_t(e.name_bytes) + e.type_bytes)
+            throw Error(label + ": the .vdb reader sent a malformed listing");
+        const char *p = (const char *) a.bytes.data() + at;
+        out.push_back({ printable_text(std::string(p, e.name_bytes)),
+                        printable_text(std::string(p + e.name_bytes, e.type_bytes)),
+                        e.grid_class });
+        at += e.name_bytes + e.type_bytes;
+    }
+    if (at != a.bytes.size())
+        throw Error(label + ": the .vdb reader sent a malformed listing");
     return out;
 }
 

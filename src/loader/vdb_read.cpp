@@ -24,6 +24,8 @@
 #include <openvdb/io/Archive.h>
 #include <openvdb/io/GridDescriptor.h>
 #include <openvdb/openvdb.h>
+#include <nanovdb/util/IO.h>
+#include <nanovdb/util/NanoToOpenVDB.h>
 
 #include "../../tools/vdb2nvdb/error.h"
 #include "../../tools/vdb2nvdb/format.h"
@@ -227,45 +229,14 @@ size_t choose(const std::string &label, const openvdb::GridPtrVec &meta,
 
 } // namespace
 
-VdbGrid read_vdb_grid(const std::string &path, const std::string &selector) {
-    static std::once_flag once;
-    std::call_once(once, [] { openvdb::initialize(); });
-    const std::string label = "\"" + path + "\"";
-    std::error_code ec;
-    if (!fs::is_regular_file(path, ec))
-        throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
-    VdbGrid out;
-    auto t0 = Clock::now();
-    openvdb::GridBase::Ptr grid;
-    try {
-        // The grids' metadata (no voxels), to choose one, then that grid alone
-        std::optional<CheckedVdbFile> opened;
-        try {
-            opened.emplace(path, label);
-        } catch (const CheckedVdbFile::NoOffsets &) {
-            throw Error(label + ": an OpenVDB stream without grid offsets (written by "
-                        "io::Stream): convert it with vdb2nvdb");
-        }
-        CheckedVdbFile &file = *opened;
-        openvdb::GridPtrVec meta = file.metadata();
-        if (meta.empty())
-            throw Error(label + ": an OpenVDB file without grids");
-        size_t i = choose(label, meta, selector);
-        if (!convertible(*meta[i]))
-            throw Error(label + ": grid " + vdb2nvdb::grid_summary(*meta[i]) +
-                        " cannot be read: only float and vec3s grids are supported (points, "
-                        "integer and double grids are not)");
-        out.index = uint32_t(i);
-        grid = file.read(i);
-        grid->setName(meta[i]->getName());
-    } catch (const Error &) {
-        throw;
-    } catch (const std::exception &e) {
-        throw Error(label + ": cannot read as an OpenVDB file (corrupt or truncated?): " +
-                    e.what());
-    }
-    out.read_seconds = since(t0);
-    t0 = Clock::now();
+namespace {
+
+/// `grid` (read whole) converted as vdb2nvdb converts it: its preparation
+/// (a level set made a fog volume unless fog_level_sets is false) and
+/// OpenToNanoVDB, into `out`
+void convert_into(openvdb::GridBase::Ptr grid, const std::string &label, bool fog_level_sets,
+                  VdbGrid &out) {
+    const auto t0 = Clock::now();
     const std::string name = grid->getName();
     try {
         vdb2nvdb::Handle h;
@@ -273,6 +244,7 @@ VdbGrid read_vdb_grid(const std::string &path, const std::string &selector) {
             openvdb::GridPtrVec one{ std::move(grid) };
             vdb2nvdb::Options opts;
             opts.grids = { name };
+            opts.keep_level_sets = !fog_level_sets;
             std::vector<vdb2nvdb::Prepared> prepared =
                 vdb2nvdb::select_and_prepare(one, label, opts);
             const vdb2nvdb::Prepared &p = prepared.front();
@@ -293,6 +265,127 @@ VdbGrid read_vdb_grid(const std::string &path, const std::string &selector) {
         throw Error(label + ": cannot convert grid \"" + name + "\": " + e.what());
     }
     out.convert_seconds = since(t0);
+}
+
+/// The file opened with its checks, for read_vdb_grid and read_vdb_listing
+CheckedVdbFile &open_checked(std::optional<CheckedVdbFile> &opened, const std::string &path,
+                             const std::string &label) {
+    try {
+        opened.emplace(path, label);
+    } catch (const CheckedVdbFile::NoOffsets &) {
+        throw Error(label + ": an OpenVDB stream without grid offsets (written by "
+                    "io::Stream): convert it with vdb2nvdb");
+    }
+    return *opened;
+}
+
+} // namespace
+
+VdbGrid read_vdb_grid(const std::string &path, const std::string &selector,
+                      bool fog_level_sets) {
+    static std::once_flag once;
+    std::call_once(once, [] { openvdb::initialize(); });
+    const std::string label = "\"" + path + "\"";
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec))
+        throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
+    VdbGrid out;
+    auto t0 = Clock::now();
+    openvdb::GridBase::Ptr grid;
+    try {
+        // The grids' metadata (no voxels), to choose one, then that grid alone
+        std::optional<CheckedVdbFile> opened;
+        CheckedVdbFile &file = open_checked(opened, path, label);
+        openvdb::GridPtrVec meta = file.metadata();
+        if (meta.empty())
+            throw Error(label + ": an OpenVDB file without grids");
+        size_t i = choose(label, meta, selector);
+        if (!convertible(*meta[i]))
+            throw Error(label + ": grid " + vdb2nvdb::grid_summary(*meta[i]) +
+                        " cannot be read: only float and vec3s grids are supported (points, "
+                        "integer and double grids are not)");
+        out.index = uint32_t(i);
+        grid = file.read(i);
+        grid->setName(meta[i]->getName());
+    } catch (const Error &) {
+        throw;
+    } catch (const std::exception &e) {
+        throw Error(label + ": cannot read as an OpenVDB file (corrupt or truncated?): " +
+                    e.what());
+    }
+    out.read_seconds = since(t0);
+    convert_into(std::move(grid), label, fog_level_sets, out);
+    return out;
+}
+
+std::vector<VdbGridInfo> read_vdb_listing(const std::string &path) {
+    static std::once_flag once;
+    std::call_once(once, [] { openvdb::initialize(); });
+    const std::string label = "\"" + path + "\"";
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec))
+        throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
+    try {
+        std::optional<CheckedVdbFile> opened;
+        std::vector<VdbGridInfo> out;
+        for (const openvdb::GridBase::Ptr &g : open_checked(opened, path, label).metadata())
+            out.push_back({ printable_text(g->getName()), g->valueType(),
+                            uint32_t(g->getGridClass()) });
+        return out;
+    } catch (const Error &) {
+        throw;
+    } catch (const std::exception &e) {
+        throw Error(label + ": cannot read as an OpenVDB file (corrupt or truncated?): " +
+                    e.what());
+    }
+}
+
+VdbGrid read_nvdb_level_set_as_fog(const std::string &path, uint32_t index) {
+    static std::once_flag once;
+    std::call_once(once, [] { openvdb::initialize(); });
+    const std::string label = "\"" + path + "\"";
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec))
+        throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
+    VdbGrid out;
+    out.index = index;
+    auto t0 = Clock::now();
+    openvdb::FloatGrid::Ptr grid;
+    std::string name;
+    try {
+        // NanoVDB's own reader and nanoToOpenVDB: what vdb2nvdb reads a .nvdb
+        // input with (tools/vdb2nvdb/read.cpp), for the types a level set has
+        nanovdb::GridHandle<nanovdb::HostBuffer> h =
+            nanovdb::io::readGrid<nanovdb::HostBuffer>(path, index);
+        const nanovdb::GridMetaData *m = h.gridMetaData();
+        name = m ? m->shortGridName() : "";
+        if (const auto *g = h.grid<float>())
+            grid = nanovdb::nanoToOpenVDB(*g);
+        else if (const auto *g = h.grid<nanovdb::Fp4>())
+            grid = nanovdb::nanoToOpenVDB(*g);
+        else if (const auto *g = h.grid<nanovdb::Fp8>())
+            grid = nanovdb::nanoToOpenVDB(*g);
+        else if (const auto *g = h.grid<nanovdb::Fp16>())
+            grid = nanovdb::nanoToOpenVDB(*g);
+        else if (const auto *g = h.grid<nanovdb::FpN>())
+            grid = nanovdb::nanoToOpenVDB(*g);
+        else
+            throw Error(label + ": grid " + std::to_string(index) + " (\"" + printable_text(name) +
+                        "\"): only float, Fp4, Fp8, Fp16 and FpN level sets can be made fog "
+                        "volumes");
+    } catch (const Error &) {
+        throw;
+    } catch (const std::exception &e) {
+        throw Error(label + ": cannot read grid " + std::to_string(index) + " as a NanoVDB "
+                    "grid (NanoVDB " + std::to_string(NANOVDB_MAJOR_VERSION_NUMBER) + "." +
+                    std::to_string(NANOVDB_MINOR_VERSION_NUMBER) + "'s reader): " + e.what());
+    }
+    if (!grid || grid->getGridClass() != openvdb::GRID_LEVEL_SET)
+        throw Error(label + ": grid \"" + printable_text(name) + "\" is not a level set: "
+                    "nothing to make a fog volume of");
+    grid->setName(name);
+    out.read_seconds = since(t0);
+    convert_into(std::move(grid), label, true, out);
     return out;
 }
 

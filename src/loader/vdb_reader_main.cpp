@@ -1,8 +1,13 @@
 // nanovdb-vdb-reader: reads one grid of a .vdb file and converts it to
-// NanoVDB, in a process of its own, for nanovdbvolume
-// (nanovdb_loader::import_vdb_grid, vdb_import.cpp, starts it).
+// NanoVDB, lists a .vdb file's grids, or makes a .nvdb level set a fog
+// volume, in a process of its own, for nanovdbvolume and nanovdb_mitsuba's
+// grid listing (nanovdb_loader::import_vdb_grid and list_vdb_grids,
+// vdb_import.cpp, start it).
 //
-//   nanovdb-vdb-reader FILE SELECTOR     (the reply goes to descriptor 3)
+//   nanovdb-vdb-reader FILE.vdb SELECTOR [--keep-level-sets]
+//   nanovdb-vdb-reader --fog-nvdb FILE.nvdb INDEX
+//   nanovdb-vdb-reader --list FILE.vdb   (the reply goes to descriptor 3;
+//                                         vdb_reader_protocol.h)
 //
 // OpenVDB's reader trusts its stream; a damaged file can corrupt the heap
 // of the process that reads it. Here that process is this one, and all it
@@ -20,6 +25,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cstdlib>
 #include <cstdio>
@@ -28,6 +34,7 @@
 #include <new>
 #include <string>
 #include <thread>
+#include <vector>
 
 namespace nl = nanovdb_loader;
 namespace rd = nanovdb_loader::vdb_reader;
@@ -84,7 +91,8 @@ void report(const std::string &path, rd::Status status, uint64_t peak, double se
 std::string g_path;
 std::chrono::steady_clock::time_point g_t0;
 
-int reply(rd::Status status, const nl::VdbGrid *grid, std::string message) {
+int reply(rd::Status status, const nl::VdbGrid *grid, std::string message,
+          const std::vector<nl::VdbGridInfo> *listing = nullptr) {
     rd::Reply r{};
     r.peak_bytes = peak_bytes();
     report(g_path, status, r.peak_bytes,
@@ -102,28 +110,52 @@ int reply(rd::Status status, const nl::VdbGrid *grid, std::string message) {
         r.convert_seconds = grid->convert_seconds;
         r.grid_bytes = grid->size;
     }
+    // A listing: one ListEntry, its name and its type per grid
+    std::string records;
+    if (listing) {
+        for (const nl::VdbGridInfo &g : *listing) {
+            rd::ListEntry e{};
+            const std::string gname = g.name.substr(0, rd::kMaxText);
+            const std::string gtype = g.type.substr(0, rd::kMaxText);
+            e.grid_class = g.grid_class;
+            e.name_bytes = uint32_t(gname.size());
+            e.type_bytes = uint32_t(gtype.size());
+            records.append(reinterpret_cast<const char *>(&e), sizeof e);
+            records += gname + gtype;
+        }
+        r.entries = uint32_t(listing->size());
+        r.grid_bytes = records.size();
+    }
     r.name_bytes = uint32_t(name.size());
     r.message_bytes = uint32_t(message.size());
     bool ok = write_all(rd::kReplyFd, &r, sizeof r) &&
               write_all(rd::kReplyFd, name.data(), name.size()) &&
               write_all(rd::kReplyFd, message.data(), message.size()) &&
-              (!grid || write_all(rd::kReplyFd, grid->data.get(), grid->size));
+              (!grid || write_all(rd::kReplyFd, grid->data.get(), grid->size)) &&
+              write_all(rd::kReplyFd, records.data(), records.size());
     if (!ok)
         return 1;
-    return status == rd::Status::OutOfBudget ? rd::kExitOutOfBudget : (grid ? 0 : 1);
+    return status == rd::Status::OutOfBudget ? rd::kExitOutOfBudget
+                                              : (grid || listing ? 0 : 1);
 }
 
 
 } // namespace
 
 int main(int argc, char **argv) {
-    if (argc != 3) {
-        std::fprintf(stderr, "usage: nanovdb-vdb-reader FILE SELECTOR (reply on fd 3; "
-                             "started by nanovdbvolume)\n");
+    const std::vector<std::string> args(argv + 1, argv + argc);
+    const bool list = args.size() == 2 && args[0] == "--list";
+    const bool fog_nvdb = args.size() == 3 && args[0] == "--fog-nvdb";
+    const bool keep = args.size() == 3 && args[2] == "--keep-level-sets";
+    if (!list && !fog_nvdb && !keep && (args.size() != 2 || args[0].rfind("--", 0) == 0)) {
+        std::fprintf(stderr, "usage: nanovdb-vdb-reader FILE.vdb SELECTOR [--keep-level-sets] | "
+                             "--fog-nvdb FILE.nvdb INDEX | --list FILE.vdb (reply on fd 3; "
+                             "started by nanovdbvolume; vdb_reader_protocol.h)\n");
         return 2;
     }
     g_t0 = std::chrono::steady_clock::now();
-    const std::string path = argv[1], selector = argv[2];
+    const std::string path = list || fog_nvdb ? args[1] : args[0];
+    const std::string selector = list ? "" : fog_nvdb ? args[2] : args[1];
     g_path = path;
     std::error_code ec;
     const uint64_t file_bytes = std::filesystem::file_size(path, ec);
@@ -140,7 +172,22 @@ int main(int argc, char **argv) {
     rd::set_heap_budget(budget);
     const std::string label = "\"" + path + "\"";
     try {
-        nl::VdbGrid grid = nl::read_vdb_grid(path, selector);
+        if (list) {
+            std::vector<nl::VdbGridInfo> grids = nl::read_vdb_listing(path);
+            return reply(rd::Status::Ok, nullptr, "", &grids);
+        }
+        if (fog_nvdb) { // a .nvdb level set, to be made a fog volume
+            const bool index = !selector.empty() && selector.size() < 10 &&
+                               std::all_of(selector.begin(), selector.end(),
+                                           [](unsigned char c) { return std::isdigit(c); });
+            if (!index)
+                return reply(rd::Status::Error, nullptr,
+                             label + ": a NanoVDB file's grid is asked for by its index, not \"" +
+                                 selector + "\"");
+            nl::VdbGrid grid = nl::read_nvdb_level_set_as_fog(path, uint32_t(std::stoul(selector)));
+            return reply(rd::Status::Ok, &grid, "");
+        }
+        nl::VdbGrid grid = nl::read_vdb_grid(path, selector, !keep);
         return reply(rd::Status::Ok, &grid, "");
     } catch (const std::bad_alloc &) {
         return reply(rd::Status::OutOfBudget, nullptr,

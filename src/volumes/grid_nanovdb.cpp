@@ -171,6 +171,15 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
      grid, -Inf and negative values by 0, with a warning that counts them.
      (Default: ``error``)
 
+ * - level_set
+   - |string|
+   - What a file's level set grid (signed distances) becomes: ``fog``, a
+     fog volume as ``vdb2nvdb`` makes one (OpenVDB's ``sdfToFogVolume``: 0
+     outside, rising through the narrow band to 1 inside), read in the
+     ``.vdb`` reader process, for ``.nvdb`` files too; ``distance``, the
+     distances as stored. Other grids are read as they are. (Default:
+     ``fog`` for a ``.vdb`` file, ``distance`` for a ``.nvdb`` file)
+
  * - to_world
    - |transform|
    - Transformation applied to the volume's local space. (Default: identity)
@@ -351,6 +360,22 @@ public:
         m_differentiable = props.get<bool>("differentiable", false);
         m_blind.channel = std::string(props.get<std::string_view>("blind_channel", ""));
         m_blind.component = (uint32_t) props.get<uint32_t>("blind_component", 0);
+        // level_set: what a file's level set becomes. The default keeps what
+        // each kind of file gave before: vdb2nvdb's fog for a .vdb, the
+        // stored distances for a .nvdb (vdb2nvdb fogs the level sets it
+        // writes unless --keep-level-sets: a .nvdb level set was kept so)
+        const bool vdb_file = !memory && nanovdb_loader::is_vdb_path(m_filename);
+        std::string_view level_set = props.get<std::string_view>("level_set",
+                                                                 vdb_file ? "fog" : "distance");
+        if (level_set == "fog")
+            m_level_set_fog = true;
+        else if (level_set != "distance")
+            Throw("nanovdbvolume: \"%s\": invalid level_set \"%s\", must be one of: \"fog\" "
+                  "or \"distance\"", m_filename, level_set);
+        if (memory && props.has_property("level_set"))
+            Throw("nanovdbvolume: \"%s\": level_set applies to the level sets of .nvdb and "
+                  ".vdb files; this volume comes from %s, which holds none", m_filename,
+                  vol_file ? "a .vol file" : "memory");
 
         // The grid (a second one for 6 channels: channels 3 to 5)
         nanovdb_loader::GridSummary summary;
@@ -579,6 +604,8 @@ public:
         put("majorant_bytes", m_trav.majorant_bytes);
         put("spectral_scale_bytes", m_trav.scale_bytes);
         put("wrap_clamp", m_clamp);
+        // level_set="fog" made this grid, a level set in the file, a fog volume
+        put("level_set_fogged", m_fogged);
         // A .vdb file: converted at load; the class the grid had in the file
         // (grid_class is what it became: a level set becomes a fog volume)
         put("vdb_imported", m_vdb.imported);
@@ -713,6 +740,7 @@ public:
 
 private:
     static constexpr uint32_t kVec3f = nanovdb_drjit::layout::GRID_TYPE_VEC3F;
+    static constexpr uint32_t kLevelSet = 1; // NanoVDB's GridClass::LevelSet
 
     /// Whether `path` starts as a gridvolume file does ("VOL", version 3)
     static bool is_vol_file(const std::string &path) {
@@ -859,13 +887,14 @@ private:
     nanovdb_loader::GridSummary load_vdb(const std::string &selector) {
         nanovdb_loader::VdbGrid g;
         try {
-            g = nanovdb_loader::import_vdb_grid(m_filename, selector);
+            g = nanovdb_loader::import_vdb_grid(m_filename, selector, m_level_set_fog);
         } catch (const nanovdb_loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
         m_vdb.imported = true;
         m_vdb.source_class = g.source_class;
         m_vdb.fogged = g.fogged;
+        m_fogged = g.fogged;
         m_vdb.convert_seconds = g.convert_seconds;
         m_vdb.reader_seconds = g.reader_seconds;
         m_vdb.reader_peak_mb = double(g.reader_peak_bytes) / double(1 << 20);
@@ -909,6 +938,8 @@ private:
                 first = &loader::select_grid(m_filename, grids, selector);
             }
             m_grid_index = uint32_t(first - grids.data());
+            if (!second && first->grid_class == kLevelSet && m_level_set_fog)
+                return load_level_set_as_fog(*first);
             loader::GridSummary summary = load_entry(*first, m_sampler, m_facts, second);
             if (second) {
                 m_second = std::make_unique<Sampler>();
@@ -920,6 +951,23 @@ private:
         } catch (const loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
+    }
+
+    /**
+     * A .nvdb file's level set with level_set="fog": made a fog volume as
+     * vdb2nvdb makes one, by the .vdb reader process (the conversion is
+     * OpenVDB's sdfToFogVolume, and the plugin does not link OpenVDB), then
+     * loaded as the grid it sends back. Only this grid is read.
+     */
+    nanovdb_loader::GridSummary load_level_set_as_fog(const nanovdb_loader::GridEntry &entry) {
+        nanovdb_loader::VdbGrid g = nanovdb_loader::import_nvdb_level_set_as_fog(
+            m_filename, m_grid_index, entry.name);
+        m_fogged = true;
+        Log(Debug, "nanovdbvolume: \"%s\": level set \"%s\" made a fog volume by "
+            "nanovdb-vdb-reader in %.3f s (peak %.1f MB)", m_filename, g.name, g.reader_seconds,
+            double(g.reader_peak_bytes) / double(1 << 20));
+        return load_memory(entry.name, g.data.get(), g.size, std::nullopt, m_sampler, m_facts,
+                           false);
     }
 
     nanovdb_loader::GridSummary load_entry(const nanovdb_loader::GridEntry &entry, Sampler &s,
@@ -1393,6 +1441,8 @@ private:
     uint32_t m_seed = 0;               // stochastic filters' hash seed (eval())
     bool m_clamp = false;              // wrap_mode "clamp": positions clamped to the box
     bool m_use_grid_transform = false;
+    bool m_level_set_fog = false;      // level_set: "fog" (true) or "distance"
+    bool m_fogged = false;             // a level set of the file, made a fog volume
     nanovdb_loader::InvalidValues m_invalid_values = nanovdb_loader::InvalidValues::Error;
     std::string m_filename, m_grid_name;
     uint32_t m_grid_index = 0xffffffffu; // in the file's grids (memory sources: none)
