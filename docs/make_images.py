@@ -1,11 +1,11 @@
-"""Makes the README's pictures (docs/images/), with the installed package:
+"""Makes the pictures of README.md and the guides (docs/images/), with the installed package:
 
 1. `nanovdb-render FILE -o ...` (the console script, defaults: 256², 64 spp,
    llvm_ad_rgb, volpathlocal) on every .vdb/.nvdb in ../shared/data, timed
    from the shell's side (conversion, kernel compilation and render), with
    what the command printed; a table in docs/images/README.md. Files it
    cannot render are listed with its message.
-2. The two placement modes on the OpenVDB smoke (README "Placing a volume").
+2. The two placement modes on the OpenVDB smoke (docs/placement.md).
 
     python3 docs/make_images.py [--shared ../shared/data] [--only shared|placement]
 """
