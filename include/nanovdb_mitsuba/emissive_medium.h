@@ -4,7 +4,7 @@
 
     Mitsuba 3's Medium has no emission: its integrators (volpath, prbvolpath,
     volpathmis) add radiance only at emitters. A medium that implements this
-    interface (emissiveheterogeneous, src/media/emissive.cpp) emits
+    interface (emissiveheterogeneous, src/media/emissiveheterogeneous.cpp) emits
     sigma_a(x) Le(x) per unit length, sigma_a = sigma_t - sigma_s (pbrt-v4's
     convention: what does not absorb does not emit), and an integrator
     (volpathlocal) adds it along its tracked flights (src/integrators/

@@ -7,7 +7,7 @@
     implements this interface (nanovdbvolume) can instead hand out a
     piecewise constant majorant along any ray, from the node structure of
     its grid (nanovdb_drjit/majorant_walk.h), and an integrator
-    (src/integrators/volpath_local.cpp) tracks against it. The integrator
+    (src/integrators/volpathlocal.cpp) tracks against it. The integrator
     finds the interface by dynamic_cast on the medium's sigma_t volume.
 
     The walk works in the volume's index space; rays are given in world
