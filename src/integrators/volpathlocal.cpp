@@ -135,10 +135,12 @@ The estimators (for a tracked medium, with majorant :math:`\bar\mu(t)` =
 
 */
 
+// volpathlocal: a class of its own name, final
 template <typename Float, typename Spectrum>
 class VolumetricPathLocalMajorants final : public MonteCarloIntegrator<Float, Spectrum> {
 public:
     MI_IMPORT_BASE(MonteCarloIntegrator, m_max_depth, m_rr_depth, m_hide_emitters)
+    // volpathlocal: Sensor and Volume, the tracker's types, the two properties
     MI_IMPORT_TYPES(Scene, Sampler, Sensor, Emitter, EmitterPtr, BSDF, BSDFPtr,
                     Medium, MediumPtr, PhaseFunctionContext, Volume)
     using Tracker = Tracking<Float, Spectrum>;
@@ -258,7 +260,7 @@ public:
             DRJIT_STRUCT(LoopState, active, depth, ray, throughput, result, \
                 si, mei, medium, eta, last_scatter_event, \
                 last_scatter_direction_pdf, needs_intersection, \
-                specular_chain, valid_ray, stalls, steps, tripped, sampler)
+                specular_chain, valid_ray, stalls, steps, tripped, sampler) // volpathlocal: the loop bounds
         } ls = {
             active,
             depth,
@@ -274,7 +276,7 @@ public:
             needs_intersection,
             specular_chain,
             valid_ray,
-            UInt32(0), UInt32(0), UInt32(0),
+            UInt32(0), UInt32(0), UInt32(0), // volpathlocal: stalls, steps, tripped
             sampler
         };
 
@@ -333,7 +335,7 @@ public:
             Mask not_spectral = false;
             if (dr::any_or<true>(sampled)) {
                 is_spectral &= medium->has_spectral_extinction();
-                not_spectral = !is_spectral && sampled;
+                not_spectral = !is_spectral && sampled; // volpathlocal: sampled lanes
             }
 
             if (dr::any_or<true>(active_medium)) {
@@ -375,6 +377,7 @@ public:
                 if (dr::any_or<true>(weighted)) {
                     auto [tr, free_flight_pdf] = medium->transmittance_eval_pdf(mei, si, weighted);
                     Float tr_pdf = index_spectrum(free_flight_pdf, channel);
+                    // volpathlocal: weighted lanes (above)
                     dr::masked(throughput, weighted) *= dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
                 }
 
@@ -424,6 +427,7 @@ public:
 
                 Mask active_e = act_medium_scatter && sample_emitters;
                 if (dr::any_or<true>(active_e)) {
+                    // volpathlocal: the shadow ray's loop-bound trips kept
                     auto [emitted, ds] = sample_emitter(mei, scene, sampler, medium, channel,
                                                         ls.tripped, active_e);
                     auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, ds.d, active_e);
@@ -498,6 +502,7 @@ public:
                 Mask active_e = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) && (depth + 1 < (uint32_t) m_max_depth);
 
                 if (likely(dr::any_or<true>(active_e))) {
+                    // volpathlocal: the shadow ray's loop-bound trips kept
                     auto [emitted, ds] = sample_emitter(si, scene, sampler, medium, channel,
                                                         ls.tripped, active_e);
 
@@ -557,7 +562,7 @@ public:
     std::tuple<Spectrum, DirectionSample3f>
     sample_emitter(const Interaction &ref_interaction, const Scene *scene,
                    Sampler *sampler, MediumPtr medium,
-                   UInt32 channel, UInt32 &tripped, Mask active) const {
+                   UInt32 channel, UInt32 &tripped, Mask active) const { // volpathlocal: tripped
         Spectrum transmittance(1.0f);
 
         auto [ds, emitter_val] = scene->sample_emitter_direction(ref_interaction, sampler->next_2d(active), false, active);
@@ -595,7 +600,7 @@ public:
 
             DRJIT_STRUCT(LoopState, active, ray, total_dist, \
                 needs_intersection, medium, si, transmittance, \
-                dir_sample, stalls, steps, tripped, sampler)
+                dir_sample, stalls, steps, tripped, sampler) // volpathlocal: the loop bounds
         } ls = {
             active,
             ray,
@@ -605,7 +610,7 @@ public:
             si,
             transmittance,
             dir_sample,
-            UInt32(0), UInt32(0), UInt32(0),
+            UInt32(0), UInt32(0), UInt32(0), // volpathlocal: stalls, steps, tripped
             sampler
         };
 
@@ -677,6 +682,7 @@ public:
                     UnpolarizedSpectrum tr  = dr::exp(-t * mei.combined_extinction);
                     UnpolarizedSpectrum free_flight_pdf = dr::select(si.t < mei.t || mei.t > remaining_dist, tr, tr * mei.combined_extinction);
                     Float tr_pdf = index_spectrum(free_flight_pdf, channel);
+                    // volpathlocal: weighted lanes (above)
                     dr::masked(transmittance, weighted) *= dr::select(tr_pdf > 0.f, tr / tr_pdf, 0.f);
                 }
 
@@ -747,6 +753,7 @@ public:
     // =============================================================
 
     std::string to_string() const override {
+        // volpathlocal: its own name, the tracking's settings, the loop bounds' trips
         report_trips();
         std::vector<uint32_t> trips = trip_counts();
         std::string trip_list;
@@ -754,13 +761,13 @@ public:
             trip_list += tfm::format("%s%s: %u", i ? ", " : "", kLoopNames[i], trips[i]);
         return tfm::format("VolumetricPathLocalMajorants[\n"
                            "  max_depth = %i,\n"
-                           "  rr_depth = %i,\n"
+                           "  rr_depth = %i,\n" // volpathlocal: and the four below
                            "  coarse_optical_depth = %f,\n"
                            "  max_majorant_ratio = %f,\n"
                            "  tracked media = %zu,\n"
                            "  loop bound trips = [%s]\n"
                            "]",
-                           m_max_depth, m_rr_depth, m_coarse_depth, m_max_ratio,
+                           m_max_depth, m_rr_depth, m_coarse_depth, m_max_ratio, // volpathlocal
                            m_tracked.size(), trip_list);
     }
 
