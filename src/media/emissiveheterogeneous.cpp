@@ -128,10 +128,12 @@ Emission outside the sigma_t volume's bounding box is not rendered.
         }
 */
 
+// emissiveheterogeneous: heterogeneous's class under its own name, plus EmissiveMedium
 template <typename Float, typename Spectrum>
 class EmissiveHeterogeneousMedium final : public Medium<Float, Spectrum>,
                                           public EmissiveMedium<Float, Spectrum> {
 public:
+    // emissiveheterogeneous: the types it uses, the blackbody's, its own name
     MI_IMPORT_BASE(Medium, m_is_homogeneous, m_has_spectral_extinction, m_phase_function)
     MI_IMPORT_TYPES(Texture, Volume)
     using Blackbody = blackbody::BlackbodyColor<Float>;
@@ -140,10 +142,11 @@ public:
         // As heterogeneous
         m_is_homogeneous = false;
         m_albedo = props.get_volume<Volume>("albedo", 0.75f);
-        m_sigmat = props.get_volume<Volume>("sigma_t", 1.f);
+        m_sigmat = props.get_volume<Volume>("sigma_t", 1.f); // emissiveheterogeneous: 1.f for 1.0f
         m_scale = props.get<ScalarFloat>("scale", 1.f);
         m_has_spectral_extinction = props.get<bool>("has_spectral_extinction", true);
         m_max_density = dr::opaque<Float>(m_scale * m_sigmat->max());
+        // emissiveheterogeneous: the box kept opaque (update_bbox), then the emission
         update_bbox();
 
         // The emission: one of two modes
@@ -173,7 +176,7 @@ public:
             } else {
                 m_color = props.get_emissive_texture<Texture>("color", 1.f);
             }
-        } else {
+        } else { // emissiveheterogeneous: the temperature mode
             m_temperature = props.get_volume<Volume>("temperature");
             check_volume("temperature", m_temperature.get(), false);
             m_t_scale = props.get<ScalarFloat>("temperature_scale", 1.f);
@@ -197,6 +200,7 @@ public:
         cb->put("scale", m_scale, ParamFlags::NonDifferentiable);
         cb->put("albedo", m_albedo, ParamFlags::Differentiable);
         cb->put("sigma_t", m_sigmat, ParamFlags::Differentiable);
+        // emissiveheterogeneous: the emission's parameters
         cb->put("emission_scale", m_emission_scale, ParamFlags::NonDifferentiable);
         if (m_emission)
             cb->put("emission", m_emission, ParamFlags::NonDifferentiable);
@@ -213,12 +217,13 @@ public:
 
     void parameters_changed(const std::vector<std::string> & /*keys*/ = {}) override {
         m_max_density = dr::opaque<Float>(m_scale * m_sigmat->max());
-        update_bbox();
+        update_bbox(); // emissiveheterogeneous: the box
     }
 
     UnpolarizedSpectrum get_majorant(const MediumInteraction3f & /* mi */,
                                      Mask active) const override {
         MI_MASKED_FUNCTION(ProfilerPhase::MediumEvaluate, active);
+        // emissiveheterogeneous: a warning where its emission goes unrendered.
         // Called by Medium::sample_interaction, i.e. by an integrator that
         // tracks the medium itself and so adds no emission
         if (!m_emission_rendered.load(std::memory_order_relaxed) &&
@@ -240,6 +245,7 @@ public:
         return { sigmas, sigman, sigmat };
     }
 
+    // emissiveheterogeneous: the opaque box (update_bbox); then the emission
     std::tuple<Mask, Float, Float> intersect_aabb(const Ray3f &ray) const override {
         return m_bbox.ray_intersect(ray);
     }
@@ -282,6 +288,7 @@ public:
 
     std::string to_string() const override {
         std::ostringstream oss;
+        // emissiveheterogeneous: its own name, the emission's parameters
         oss << "EmissiveHeterogeneousMedium[" << std::endl
             << "  albedo = " << string::indent(m_albedo) << "," << std::endl
             << "  sigma_t = " << string::indent(m_sigmat) << "," << std::endl
@@ -296,9 +303,10 @@ public:
         return oss.str();
     }
 
-    MI_DECLARE_CLASS(EmissiveHeterogeneousMedium)
+    MI_DECLARE_CLASS(EmissiveHeterogeneousMedium) // emissiveheterogeneous: its own name
 
 private:
+    // emissiveheterogeneous: helpers of its own
     /// The sigma_t volume's box, opaque: the frames of an animation (each its
     /// own box) then share one kernel, where heterogeneous's box, a literal,
     /// compiles one per frame
@@ -349,6 +357,7 @@ private:
     ref<Volume> m_sigmat, m_albedo;
     ScalarFloat m_scale;
     Float m_max_density;
+    // emissiveheterogeneous: the box, the emission
     BoundingBox3f m_bbox;
 
     ref<Volume> m_emission, m_temperature;
@@ -358,9 +367,10 @@ private:
 
     mutable std::atomic<bool> m_emission_rendered{ false }, m_warned{ false };
 
+    // emissiveheterogeneous: and its own JIT members
     MI_TRAVERSE_CB(Base, m_sigmat, m_albedo, m_max_density, m_bbox, m_emission, m_temperature,
                    m_color, m_d65)
 };
 
-MI_EXPORT_PLUGIN(EmissiveHeterogeneousMedium)
+MI_EXPORT_PLUGIN(EmissiveHeterogeneousMedium) // emissiveheterogeneous: its own name
 NAMESPACE_END(mitsuba)
