@@ -2,7 +2,9 @@
 ../shared/data that hold a float fog volume or level set: each renders, at a
 tiny size, to a finite, non-constant image in which the volume's world box
 lies inside the frame and covers a fair share of it; a .vdb and the .nvdb
-vdb2nvdb makes of it give the same image."""
+vdb2nvdb makes of it give the same image. The command reads files through
+nanovdbvolume alone (test05: level sets, no vdb2nvdb process, no temporary
+file), and lists their grids through a structured call (test06)."""
 import os
 import re
 import subprocess
@@ -128,3 +130,94 @@ def test04_files_without_a_density_get_one_clear_line(path, tmp_path):
     else:
         last = p.stderr.strip().splitlines()[-1]
         assert path.name in last and ("nanovdb-render:" in last), last
+
+
+def test05_level_sets_render_without_a_converter(tmp_path):
+    """A .vdb level set and the same level set kept in a .nvdb go straight
+    to nanovdbvolume (level_set="fog"): no vdb2nvdb process (every way the
+    package could find one fails and leaves a mark) and no temporary file
+    (nothing is made in TMPDIR); both render as the same fog, so the same image"""
+    trap_dir, tmp = tmp_path / "trap", tmp_path / "tmp"
+    trap_dir.mkdir()
+    tmp.mkdir()
+    mark = tmp_path / "vdb2nvdb_ran"
+    trap = trap_dir / "vdb2nvdb"
+    trap.write_text(f"#!/bin/sh\necho ran >> '{mark}'\nexit 1\n")
+    trap.chmod(0o755)
+    exe = str(BUILD / "bin" / "vdb2nvdb")
+    vdb, nvdb = tmp_path / "ball.vdb", tmp_path / "ball.nvdb"
+    subprocess.run([exe, "generate", "sphere_ls_16", str(vdb)], check=True, capture_output=True)
+    subprocess.run([exe, str(vdb), str(nvdb), "--keep-level-sets"], check=True,
+                   capture_output=True)
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "python"), NVDB_VDB2NVDB=str(trap),
+               PATH=f"{trap_dir}:{os.environ.get('PATH', '')}", TMPDIR=str(tmp))
+    images = []
+    written = os.stat(tmp).st_mtime_ns  # (changes when a file is made in it, even if removed)
+    for src in (vdb, nvdb):
+        out = tmp_path / f"{src.suffix[1:]}.png"
+        p = subprocess.run([sys.executable, "-m", "nanovdb_mitsuba.render", str(src), "-o",
+                            str(out), "--res", "16", "--spp", "4", "--scale", "4"], env=env,
+                           capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr
+        assert f'{src}: grid "ls_sphere" is a level set: rendering it as a fog volume' in p.stdout
+        assert not mark.exists(), "vdb2nvdb ran"
+        assert os.stat(tmp).st_mtime_ns == written, f"a temporary file: {os.listdir(tmp)}"
+        import mitsuba as mi
+        mi.set_variant("scalar_rgb")
+        images.append(np.array(mi.Bitmap(str(out.with_suffix(".exr")))))
+    assert images[0].std() > 1e-3
+    # The same fog (test_vdb_import test08 compares the grids bit for bit):
+    # equal up to the order of the film's atomic accumulation
+    np.testing.assert_allclose(images[0], images[1], rtol=1e-4, atol=1e-5)
+
+
+def vdb2nvdb(*args):
+    subprocess.run([str(BUILD / "bin" / "vdb2nvdb"), *map(str, args)], check=True,
+                   capture_output=True)
+
+
+def test06_grid_listing(tmp_path, monkeypatch):
+    """nanovdb_mitsuba.files.list_grids: the grids' names, types and classes
+    as fields (the generator's "multi": vdb2nvdb generate --list), from a
+    .vdb through the reader process and from a .nvdb's headers; every
+    failure a FileError that names the file"""
+    from nanovdb_mitsuba import files
+    multi_vdb = tmp_path / "multi.vdb"
+    vdb2nvdb("generate", "multi", multi_vdb)
+    want = [("density", "float", "fog volume"), ("vel", "vec3s", "unknown"),
+            ("ls_sphere", "float", "level set"), ("flags", "int32", "unknown"),
+            ("temperature", "float", "unknown")]
+    got = files.list_grids(multi_vdb)
+    assert [(g.name, g.type, g.grid_class) for g in got] == want
+    assert [g.index for g in got] == list(range(5))
+    # vdb2nvdb's .nvdb: float and vec3s grids, the level set made fog;
+    # as an Fp16 file the scalar grids are still "float" (one channel)
+    for quantize, stored in (("float", "float"), ("fp16", "Fp16")):
+        nvdb = tmp_path / f"multi_{quantize}.nvdb"
+        vdb2nvdb(multi_vdb, nvdb, "--quantize", quantize)
+        got = files.list_grids(nvdb)
+        assert [(g.name, g.type, g.grid_class) for g in got] == [
+            ("density", "float", "fog volume"), ("vel", "vec3s", "unknown"),
+            ("ls_sphere", "float", "fog volume"), ("temperature", "float", "unknown")]
+        assert [g.stored_type for g in got] == [stored, "Vec3f", stored, stored]
+    assert files.grid_rows(multi_vdb)[1] == ("vel", "vec3s")
+    # Damaged, missing, not a volume: an error that names the file
+    data = multi_vdb.read_bytes()
+    cases = {"truncated.vdb": data[:200], "garbage.vdb": bytes(range(256)) * 40,
+             "garbage.nvdb": bytes(range(256)) * 40, "empty.nvdb": b""}
+    for name, content in cases.items():
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(files.FileError, match=name):
+            files.list_grids(tmp_path / name)
+    with pytest.raises(files.FileError, match=r'missing.vdb": no such file'):
+        files.list_grids(tmp_path / "missing.vdb")
+    # A reader that crashes: the caller gets an error, and lives on
+    crash = tmp_path / "crash.sh"
+    crash.write_text("#!/bin/sh\nkill -SEGV $$\n")
+    crash.chmod(0o755)
+    monkeypatch.setenv("NVDB_VDB_READER", str(crash))
+    copy = tmp_path / "copy.vdb"
+    copy.write_bytes(data)
+    with pytest.raises(files.FileError, match=r'copy.vdb": damaged: .*crashed on it with '
+                                              r'SIGSEGV'):
+        files.list_grids(copy)

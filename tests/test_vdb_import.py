@@ -201,3 +201,69 @@ def test06_points_file(variant_scalar_rgb):
         mi.load_dict({"type": "nanovdbvolume", "filename": str(points), "grid": "points"})
     with pytest.raises(RuntimeError, match=r"openvdb_sphere_points.vdb.*no float or vec3s grid"):
         mi.load_dict({"type": "nanovdbvolume", "filename": str(points)})
+
+
+# level_set (issue 33): what a file's level set becomes, validated in the
+# constructor; "fog" must give exactly vdb2nvdb's fog of the same file, for
+# .nvdb files too (the reader process makes it), and "distance" exactly the
+# distances vdb2nvdb --keep-level-sets writes.
+
+def nearest_reads(volume, facts):
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(-0.05, 1.05, (3000, 3))
+    dims = np.array(facts["index_dims"], dtype=np.float64)
+    idx = np.stack(np.meshgrid(*[np.arange(int(d)) for d in dims], indexing="ij"), -1)
+    return eval_points(volume, np.concatenate([pts, (idx.reshape(-1, 3) + 0.5) / dims]))
+
+
+def assert_same_volume(a, b):
+    fa, fb = volume_facts(a), volume_facts(b)
+    for key in ["grid_type", "grid_class", "index_min", "index_dims", "world_bbox_min",
+                "world_bbox_max", "max", "grid_max", "background", "grid_bytes"]:
+        assert fa[key] == fb[key], (key, fa[key], fb[key])
+    va, vb = nearest_reads(a, fa), nearest_reads(b, fb)
+    assert np.array_equal(va, vb), np.abs(va - vb).max()
+    assert va.max() > 0  # (something was compared)
+    return fa
+
+
+def test07_level_set_is_validated(variant_scalar_rgb, multi_vdb):
+    load = lambda **kw: mi.load_dict({"type": "nanovdbvolume", **kw})  # noqa: E731
+    with pytest.raises(RuntimeError, match=r'multi.vdb": invalid level_set "sdf", must be one '
+                                           r'of: "fog" or "distance"'):
+        load(filename=str(multi_vdb), grid="ls_sphere", level_set="sdf")
+    with pytest.raises(RuntimeError, match=r"level_set applies to the level sets of .nvdb and "
+                                           r".vdb files; this volume comes from memory"):
+        load(data=mi.TensorXf(np.ones((2, 2, 2), dtype=np.float32)), level_set="fog")
+
+
+def test08_level_set_fog_and_distance_equal_vdb2nvdb(variants_rgb, multi_vdb, tmp_path):
+    # The level set kept in a .nvdb, and vdb2nvdb's fog and distances of it
+    kept = tmp_path / "kept.nvdb"
+    vdb2nvdb(multi_vdb, kept, "--grid", "ls_sphere", "--keep-level-sets")
+    fogged = tmp_path / "fogged.nvdb"
+    vdb2nvdb(kept, fogged)  # (vdb2nvdb reads .nvdb input: a level set becomes fog)
+    args = {"grid": "ls_sphere", "filter_type": "nearest"}
+
+    def load(path, **kw):
+        return mi.load_dict({"type": "nanovdbvolume", "filename": str(path), **args, **kw})
+    # .nvdb: distances by default, fog on request, equal to vdb2nvdb's fog
+    plain = load(kept)
+    assert volume_facts(plain)["grid_class"] == "level set"
+    assert not mi.traverse(plain)["level_set_fogged"]
+    fog = load(kept, level_set="fog")
+    assert mi.traverse(fog)["level_set_fogged"]
+    facts = assert_same_volume(fog, load(fogged))
+    assert facts["grid_class"] == "fog volume" and facts["max"] <= 1.0
+    assert_same_volume(load(kept, level_set="distance", invalid_values="clamp"),
+                       load(kept, invalid_values="clamp"))
+    # .vdb: fog by default (as before), distances on request, equal to
+    # vdb2nvdb --keep-level-sets
+    assert_same_volume(load(multi_vdb), load(fogged))
+    distances = load(multi_vdb, level_set="distance", invalid_values="clamp")
+    assert volume_facts(distances)["grid_class"] == "level set"
+    assert not mi.traverse(distances)["level_set_fogged"]
+    assert_same_volume(distances, load(kept, invalid_values="clamp"))
+    # Other grids are read as they are whatever level_set says
+    assert_same_volume(load(multi_vdb, grid="density", level_set="fog"),
+                       load(multi_vdb, grid="density", level_set="distance"))

@@ -71,8 +71,12 @@ uint64_t peak_bytes() {
     return uint64_t(kb) * 1024;
 }
 
+/// The request being answered: "grid", "list" or "fog-nvdb"
+const char *g_request = "grid";
+
 /// NVDB_VDB_READER_REPORT=FILE: one JSON line per read appended to FILE
-/// (the file, status, peak, seconds): what a farm or a test measures
+/// (the file, the request, status, peak, seconds): what a farm or a test
+/// measures
 void report(const std::string &path, rd::Status status, uint64_t peak, double seconds) {
     const char *to = std::getenv("NVDB_VDB_READER_REPORT");
     if (!to || !*to)
@@ -81,9 +85,9 @@ void report(const std::string &path, rd::Status status, uint64_t peak, double se
         std::string escaped;
         for (char c : path)
             escaped += (c == '"' || c == '\\') ? std::string("\\") + c : std::string(1, c);
-        std::fprintf(f, "{\"file\": \"%s\", \"status\": %u, \"peak_mb\": %.2f, "
-                        "\"seconds\": %.4f}\n", escaped.c_str(), unsigned(status),
-                     double(peak) / (1 << 20), seconds);
+        std::fprintf(f, "{\"file\": \"%s\", \"request\": \"%s\", \"status\": %u, "
+                        "\"peak_mb\": %.2f, \"seconds\": %.4f}\n", escaped.c_str(),
+                     g_request, unsigned(status), double(peak) / (1 << 20), seconds);
         std::fclose(f);
     }
 }
@@ -157,6 +161,7 @@ int main(int argc, char **argv) {
     const std::string path = list || fog_nvdb ? args[1] : args[0];
     const std::string selector = list ? "" : fog_nvdb ? args[2] : args[1];
     g_path = path;
+    g_request = list ? "list" : fog_nvdb ? "fog-nvdb" : "grid";
     std::error_code ec;
     const uint64_t file_bytes = std::filesystem::file_size(path, ec);
     const uint64_t budget = rd::memory_budget(ec ? 0 : file_bytes);
