@@ -347,3 +347,22 @@ def test11_fire_command_line_errors(fire_dir, tmp_path):
     p = command(d / "fire.####.vdb", "--emission-grid", "nosuch", "--plan", tmp_path / "c.json",
                 cwd=tmp_path)
     assert p.returncode != 0 and 'no frame holds a grid "nosuch"' in p.stderr
+
+
+def test12_each_frame_read_once(frames_dir, tmp_path):
+    """The scan reads each frame's .vdb once: one listing and one read of
+    its grid by nanovdbvolume's reader process (NVDB_VDB_READER_REPORT logs
+    every request), no converter and no temporary .nvdb"""
+    report = tmp_path / "reader.jsonl"
+    env = dict(ENV, NVDB_VDB_READER_REPORT=str(report))
+    p = subprocess.run([sys.executable, "-m", "nanovdb_mitsuba.render",
+                        str(frames_dir / "smoke.####.vdb"), "--plan", str(tmp_path / "p.json")],
+                       env=env, cwd=tmp_path, capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    rows = [json.loads(line) for line in report.read_text().splitlines()]
+    requests = {}
+    for r in rows:
+        requests.setdefault(os.path.basename(r["file"]), []).append(r["request"])
+    want = {f"smoke.{f:04d}.vdb": ["list", "grid"] for f in FRAMES if f != MISSING}
+    assert requests == want
+    assert not list(frames_dir.glob("*.nvdb")) and not list(tmp_path.glob("*.nvdb"))
