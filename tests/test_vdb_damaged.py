@@ -250,3 +250,38 @@ def test08_vdb2nvdb_deadline(fog, tmp_path):
                        timeout=60, env={**os.environ, "NVDB_VDB2NVDB_TIMEOUT": "0.01"})
     assert r.returncode == 1 and "took longer than 0.01 s" in r.stderr, r.stderr
     assert not out.exists() and not list(tmp_path.glob(".o.nvdb.tmp-*"))
+
+
+def test09_listing_damaged_files(fog, tmp_path):
+    """The grid listing that nanovdb-render and sequences use
+    (nanovdb_mitsuba.files.list_grids: the reader process's --list request
+    for a .vdb) on the fuzzers' reproducers, hostile sizes, a truncated and
+    a garbage file: each a list of grids or a FileError that names the
+    file, in this process, which must survive them all"""
+    sys.path.insert(0, str(ROOT / "python"))
+    from nanovdb_mitsuba import files
+    data = bytearray(fog.read_bytes())
+    cases = {}
+    for crasher in (sorted(CRASHERS.glob("*")) if CRASHERS.is_dir() else []):
+        cases[crasher.name + ".vdb"] = crasher.read_bytes()
+    d = bytearray(data)
+    struct.pack_into("<II", d, find_root_counts(d)[0], 2**32 - 1, 0)
+    cases["tiles.vdb"] = bytes(d)
+    d = bytearray(data)
+    struct.pack_into("<q", d, find_chunk_sizes(d)[0], 1 << 30)
+    cases["gig.vdb"] = bytes(d)
+    cases["truncated.vdb"] = bytes(data[:100])
+    cases["garbage.vdb"] = bytes(range(256)) * 16
+    listed = refused = 0
+    for name, content in cases.items():
+        (tmp_path / name).write_bytes(content)
+        try:
+            grids = files.list_grids(tmp_path / name)
+        except files.FileError as e:
+            assert name in str(e), e
+            refused += 1
+        else:
+            assert all(isinstance(g.name, str) and g.type for g in grids), grids
+            listed += 1
+    assert refused >= 2  # (the truncated and the garbage file at least)
+    print(f"{len(cases)} damaged files: {listed} listed (metadata intact), {refused} refused")
