@@ -36,13 +36,11 @@ TEST_APT_PACKAGES=(
 # The build's requirements (pyproject.toml [build-system]) are installed here
 # and the build uses them (--no-build-isolation): no second download.
 PIP_PACKAGES=(mitsuba==3.9.1 drjit==1.5.0 nanobind==3.1.0 scikit-build-core==1.1.2 numpy==2.4.6)
-TEST_PIP_PACKAGES=(pytest==9.2.0 matplotlib==3.11.2)  # the tests and the benchmarks
+# the tests and the benchmarks; pytest-xdist runs the test files on every core
+TEST_PIP_PACKAGES=(pytest==9.2.0 pytest-xdist==3.8.0 execnet==2.1.2 matplotlib==3.11.2)
 
 if grep -qs "^NVDB_BUILD_TESTS:BOOL=ON" build/CMakeCache.txt; then
   BUILD_TESTS=ON  # keep a test build a test build (no flip-flopping of build/)
-fi
-if [ "$BUILD_TESTS" = ON ]; then
-  VARIANTS=""     # the tests need every variant
 fi
 if [ "$BUILD_TESTS" = ON ]; then
   APT_PACKAGES+=("${TEST_APT_PACKAGES[@]}")
@@ -79,6 +77,23 @@ PY
 then
   echo "== pip install ${PIP_PACKAGES[*]}"
   "$PYTHON" -m pip install -q "${PIP_FLAGS[@]}" "${PIP_PACKAGES[@]}"
+fi
+
+if [ "$BUILD_TESTS" = ON ]; then
+  # The variants the tests run: every CPU variant (tests/conftest.py's
+  # variants_all) and the GPU kit's CUDA ones (rgb, mono, spectral:
+  # scripts/gpu_kit_pack.sh). No test runs the two polarized CUDA variants;
+  # their code is the polarized LLVM variants' on the CUDA backend, which
+  # the others compile, so a test build leaves them out (about a minute of a
+  # 2-core build; bench/PERF_LOG.md 28). A plain `pip install .` builds all,
+  # and so does a test build where a GPU is (the tests run every variant).
+  VARIANTS=$("$PYTHON" -c 'import ctypes, mitsuba as mi
+try:
+    ctypes.CDLL("libcuda.so.1"); gpu = True
+except OSError:
+    gpu = False
+print("" if gpu else ";".join(v for v in mi.variants()
+                              if not (v.startswith("cuda") and v.endswith("polarized"))))')
 fi
 
 # One compile per core: ninja's default (cores + 2) makes a 2-core build

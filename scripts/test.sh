@@ -4,10 +4,23 @@
 # harness in its fast mode, and the pytest suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Each stage's wall time, and the run's, printed as it goes ("== name
+# [mm:ss]") and summed up at the end: what CI's 20 minutes are spent on
+stage_start=$SECONDS
+stages=()
+stage() {
+  local now=$SECONDS
+  [ -z "${stage_name:-}" ] || stages+=("$(printf '%-8s %3d:%02d' "$stage_name" $(((now - stage_start) / 60)) $(((now - stage_start) % 60)))")
+  stage_name=$1
+  stage_start=$now
+  echo "== $2 [$((now / 60)):$(printf '%02d' $((now % 60)))]"
+}
+trap 'stage end "stage times"; printf "   %s\n" "${stages[@]}"' EXIT
+stage install "install and build (scripts/install.sh)"
 bash scripts/install.sh
-echo "== doctest (ctest)"
+stage ctest "doctest (ctest)"
 ctest --test-dir build --output-on-failure --parallel "$(nproc)"
-echo "== fuzz (short runs; NVDB_FUZZ_SECONDS=${NVDB_FUZZ_SECONDS:-20} each)"
+stage fuzzbld "fuzz build (clang, libFuzzer + ASan + UBSan, build-fuzz/)"
 # tests/fuzz/fuzz_nvdb.cpp (.nvdb) and fuzz_vdb.cpp (.vdb) with clang
 # (libFuzzer + ASan + UBSan), in their own build directory. Seeds: the
 # committed corpus (tests/fuzz/corpus/, what the campaign found:
@@ -36,12 +49,16 @@ done
 [ -f build-fuzz/seeds/single_voxel_key_bit20.nvdb ] ||
   build/bin/nvdb_make_test_grid single_voxel build-fuzz/seeds/single_voxel_key_bit20.nvdb \
     --root-key-bit 20 >/dev/null
+stage fuzz "fuzz (short runs; NVDB_FUZZ_SECONDS=${NVDB_FUZZ_SECONDS:-20} each)"
 shared="${NVDB_SHARED_DATA:-../shared/data}"
+# The two fuzzers run side by side, one core each (fuzz_nvdb in the
+# background; its exit status is waited for below: a crash fails the run).
 # (-max_len: the typed seeds are 1.2-2.4 MB; the default 1 MiB would cut
 # them short, and no quantized or Vec3f grid would reach the lookups)
 build-fuzz/bin/fuzz_nvdb -max_total_time="${NVDB_FUZZ_SECONDS:-20}" -print_final_stats=1 -max_len=2500000 \
   build-fuzz/corpus $( [ -d tests/fuzz/corpus/nvdb ] && echo tests/fuzz/corpus/nvdb ) build-fuzz/seeds \
-  $( [ -d "$shared" ] && echo "$shared" ) 2>&1 | tail -n 8
+  $( [ -d "$shared" ] && echo "$shared" ) > build-fuzz/fuzz_nvdb.log 2>&1 &
+fuzz_nvdb_pid=$!
 # Small OpenVDB files from the generator (fog, random values, a level set,
 # an empty grid; ~10-80 KB: a large file reads at a few per second). The
 # shared files are the campaign's seeds (scripts/fuzz_campaign.sh).
@@ -67,8 +84,16 @@ if [ -e "${findings[0]}" ]; then
 else
   echo "fuzz_vdb: no findings"
 fi
-echo "== bench (fast mode: the harness runs end to end; timings are not asserted)"
+nvdb_status=0
+wait "$fuzz_nvdb_pid" || nvdb_status=$?
+tail -n 8 build-fuzz/fuzz_nvdb.log
+[ "$nvdb_status" = 0 ] || { echo "fuzz_nvdb failed ($nvdb_status): build-fuzz/fuzz_nvdb.log"; exit 1; }
+stage bench "bench (fast mode: the harness runs end to end; timings are not asserted)"
 "${PYTHON:-python3}" bench/run.py --fast
 # pytest last: its summary line closes the run
-echo "== pytest"
-"${PYTHON:-python3}" -m pytest -q tests -p no:cacheprovider "$@"
+stage pytest "pytest"
+# One worker per core, each taking whole files (--dist loadfile: a file's
+# module fixtures, its generated grids and renders, stay in one process;
+# bench/PERF_LOG.md 28). NVDB_PYTEST_WORKERS=0 runs them in this process.
+"${PYTHON:-python3}" -m pytest -q tests -p no:cacheprovider \
+  -n "${NVDB_PYTEST_WORKERS:-$(nproc)}" --dist loadfile "$@"
