@@ -45,9 +45,14 @@ for t in "${targets[@]}"; do
   otc=$(sed -E 's#.*oom/timeout/crash: ([0-9/]+).*#\1#' <<<"$last")
   # the committed corpus: only inputs that add coverage (-merge=1)
   "$bin" -merge=1 "tests/fuzz/corpus/$t" "$work/corpus" > "$work/merge.log" 2>&1 || true
-  # kept small: inputs over 256 KB (mutants of the generator's typed .nvdb
-  # seeds, which the test command makes again) stay in the campaign's corpus
-  find "tests/fuzz/corpus/$t" -type f -size +256k -delete
+  # kept small: new inputs over 256 KB (.nvdb: mutants of the generator's
+  # typed seeds, which the test command makes again) or 64 KB (.vdb: mutants
+  # of the shared files' first 128 KB) stay in the campaign's own corpus
+  cap=256k
+  [ "$t" = vdb ] && cap=64k
+  find "tests/fuzz/corpus/$t" -type f -size +$cap | while read -r f; do
+    git ls-files --error-unmatch "$f" >/dev/null 2>&1 || rm -f "$f"
+  done
   files=$(ls "tests/fuzz/corpus/$t" | wc -l)
   kb=$(du -sk "tests/fuzz/corpus/$t" | cut -f1)
   findings=$(ls "$work/findings" | wc -l)
