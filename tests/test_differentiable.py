@@ -603,3 +603,14 @@ def test13_vec3f_differentiable_refused_in_spectral_variants():
     vol = mi.load_dict({"type": "nanovdbvolume", "data": mi.TensorXf(d), "differentiable": True,
                         "raw": True})
     assert mi.traverse(vol)["channels"] == 3
+
+
+def test14_six_channels_refuse_differentiable(variant_llvm_ad_rgb):
+    # A 6-channel volume is two 3-channel grids, not one index grid: asked for
+    # gradients it exposed none and said nothing (issue 33's review); now the
+    # constructor refuses, naming the volume, and without the flag it loads
+    d = np.random.default_rng(3).uniform(0.1, 1.0, (4, 5, 6, 6)).astype(np.float32)
+    with pytest.raises(Exception, match="differentiable=true is not supported for a 6-channel"):
+        mi.load_dict({"type": "nanovdbvolume", "data": mi.TensorXf(d), "differentiable": True})
+    vol = mi.load_dict({"type": "nanovdbvolume", "data": mi.TensorXf(d)})
+    assert mi.traverse(vol)["channels"] == 6

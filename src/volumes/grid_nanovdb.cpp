@@ -70,7 +70,8 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
      or (z, y, x, channels), 1, 3 or 6 channels, made into a sparse grid.
      With ``differentiable=true`` the values of a 1- or 3-channel volume
      (from any source) are exposed as the differentiable parameter ``data``
-     (see ``differentiable``); a 6-channel volume's are not.
+     (see ``differentiable``); a 6-channel volume refuses
+     ``differentiable=true``.
    - |exposed|, |differentiable|
 
  * - values, coords
@@ -415,6 +416,10 @@ public:
         m_channel_count = m_second ? 6
                           : m_facts.grid_type == kVec3f || m_sampler.index_channels == 3 ? 3
                                                                                           : 1;
+        if (m_differentiable && m_channel_count == 6)
+            Throw("nanovdbvolume: \"%s\": differentiable=true is not supported for a 6-channel "
+                  "volume (its values are two grids of 3 channels, not one index grid); use "
+                  "two 3-channel volumes, or leave differentiable out", m_filename);
         m_grid_name = m_facts.name;
         // Stochastic filters' offsets in eval(): a hash of the position and
         // of this seed, so that volumes of other files or grids (a medium's
