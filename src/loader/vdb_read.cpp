@@ -3,9 +3,9 @@
 // (src/loader/vdb_reader_main.cpp) and the fuzzer (tests/fuzz/fuzz_vdb.cpp)
 // run it: OpenVDB trusts its stream, so nanovdbvolume reads a .vdb through
 // that separate process (src/loader/vdb_import.cpp says why).
-// The conversion is vdb2nvdb's own (tools/vdb2nvdb: prepare.h, to_nano.h),
-// linked as the vdb2nvdb_convert library, so the plugin and the converter
-// cannot drift apart.
+// The conversion is vdb2nvdb's own (src/convert/: prepare.cpp, to_nano.cpp),
+// the nanovdb_convert library, which vdb2nvdb links too, so the plugin and
+// the converter cannot drift apart.
 
 #include "vdb_read.h"
 
@@ -27,10 +27,10 @@
 #include <nanovdb/util/IO.h>
 #include <nanovdb/util/NanoToOpenVDB.h>
 
-#include "../../tools/vdb2nvdb/error.h"
-#include "../../tools/vdb2nvdb/format.h"
-#include "../../tools/vdb2nvdb/prepare.h"
-#include "../../tools/vdb2nvdb/to_nano.h"
+#include <nanovdb_convert/error.h>
+#include <nanovdb_convert/format.h>
+#include <nanovdb_convert/prepare.h>
+#include <nanovdb_convert/to_nano.h>
 
 namespace nanovdb_loader {
 
@@ -279,16 +279,27 @@ CheckedVdbFile &open_checked(std::optional<CheckedVdbFile> &opened, const std::s
     return *opened;
 }
 
-} // namespace
-
-VdbGrid read_vdb_grid(const std::string &path, const std::string &selector,
-                      bool fog_level_sets) {
+void initialize_openvdb() {
     static std::once_flag once;
     std::call_once(once, [] { openvdb::initialize(); });
+}
+
+/// Every reading entry point's start: OpenVDB initialized once, and the
+/// file's label ("path", as errors quote it) once the path is a regular file
+std::string opened_label(const std::string &path) {
+    initialize_openvdb();
     const std::string label = "\"" + path + "\"";
     std::error_code ec;
     if (!fs::is_regular_file(path, ec))
         throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
+    return label;
+}
+
+} // namespace
+
+VdbGrid read_vdb_grid(const std::string &path, const std::string &selector,
+                      bool fog_level_sets) {
+    const std::string label = opened_label(path);
     VdbGrid out;
     auto t0 = Clock::now();
     openvdb::GridBase::Ptr grid;
@@ -319,12 +330,7 @@ VdbGrid read_vdb_grid(const std::string &path, const std::string &selector,
 }
 
 std::vector<VdbGridInfo> read_vdb_listing(const std::string &path) {
-    static std::once_flag once;
-    std::call_once(once, [] { openvdb::initialize(); });
-    const std::string label = "\"" + path + "\"";
-    std::error_code ec;
-    if (!fs::is_regular_file(path, ec))
-        throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
+    const std::string label = opened_label(path);
     try {
         std::optional<CheckedVdbFile> opened;
         std::vector<VdbGridInfo> out;
@@ -341,12 +347,7 @@ std::vector<VdbGridInfo> read_vdb_listing(const std::string &path) {
 }
 
 VdbGrid read_nvdb_level_set_as_fog(const std::string &path, uint32_t index) {
-    static std::once_flag once;
-    std::call_once(once, [] { openvdb::initialize(); });
-    const std::string label = "\"" + path + "\"";
-    std::error_code ec;
-    if (!fs::is_regular_file(path, ec))
-        throw Error(label + (fs::exists(path, ec) ? ": not a regular file" : ": no such file"));
+    const std::string label = opened_label(path);
     VdbGrid out;
     out.index = index;
     auto t0 = Clock::now();
@@ -390,8 +391,7 @@ VdbGrid read_nvdb_level_set_as_fog(const std::string &path, uint32_t index) {
 }
 
 bool check_vdb_structure(const std::string &path) {
-    static std::once_flag once;
-    std::call_once(once, [] { openvdb::initialize(); });
+    initialize_openvdb();
     const std::string label = "\"" + path + "\"";
     try {
         CheckedVdbFile file(path, label);
