@@ -259,8 +259,12 @@ void convert_into(openvdb::GridBase::Ptr grid, const std::string &label, bool fo
         out.size = h.size();
         auto owner = std::make_shared<vdb2nvdb::Handle>(std::move(h));
         out.data = std::shared_ptr<const uint8_t>(owner, owner->data());
-    } catch (const vdb2nvdb::Error &e) { // (its messages start with the label)
-        throw Error(e.what());
+    } catch (const vdb2nvdb::Error &e) {
+        // select_and_prepare's messages start with the label, convert_one's
+        // with the grid (a fuzzed file: 'grid "density": NanoVDB conversion
+        // failed: ... nearly singular matrix' named no file)
+        const std::string what = e.what();
+        throw Error(what.rfind(label, 0) == 0 ? what : label + ": " + what);
     } catch (const std::exception &e) {
         throw Error(label + ": cannot convert grid \"" + name + "\": " + e.what());
     }
