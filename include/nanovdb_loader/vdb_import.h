@@ -9,7 +9,7 @@
 // trusted: the caller validates them as any .nvdb grid.
 //
 // Only the grid asked for is read (its metadata first, to choose it, then
-// that grid alone) and converted with vdb2nvdb's rules (tools/vdb2nvdb/
+// that grid alone) and converted with vdb2nvdb's rules (src/convert/
 // prepare.cpp, to_nano.cpp): a float grid as float, a level set first made
 // a fog volume (openvdb::tools::sdfToFogVolume), a vec3s grid as Vec3f.
 // Other types (points, integers, doubles, ...) are refused. Built only with

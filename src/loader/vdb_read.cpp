@@ -27,10 +27,10 @@
 #include <nanovdb/util/IO.h>
 #include <nanovdb/util/NanoToOpenVDB.h>
 
-#include "../../tools/vdb2nvdb/error.h"
-#include "../../tools/vdb2nvdb/format.h"
-#include "../../tools/vdb2nvdb/prepare.h"
-#include "../../tools/vdb2nvdb/to_nano.h"
+#include <nanovdb_convert/error.h>
+#include <nanovdb_convert/format.h>
+#include <nanovdb_convert/prepare.h>
+#include <nanovdb_convert/to_nano.h>
 
 namespace nanovdb_loader {
 

@@ -14,15 +14,15 @@
 #include <memory>
 #include <set>
 
+#include <nanovdb_convert/format.h>
+#include <nanovdb_convert/handle.h>
+#include <nanovdb_convert/prepare.h>
+#include <nanovdb_convert/to_nano.h>
 #include "dense.h"
 #include "describe.h"
-#include "format.h"
-#include "handle.h"
-#include "prepare.h"
 #include "read.h"
 #include "report.h"
 #include "temp_file.h"
-#include "to_nano.h"
 #include "verify.h"
 
 namespace vdb2nvdb {

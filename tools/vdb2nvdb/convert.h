@@ -11,8 +11,8 @@
 
 #include <openvdb/openvdb.h>
 
-#include "error.h"
-#include "options.h"
+#include <nanovdb_convert/error.h>
+#include <nanovdb_convert/options.h>
 
 namespace vdb2nvdb {
 

@@ -13,7 +13,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
-#include "format.h"
+#include <nanovdb_convert/format.h>
 
 namespace vdb2nvdb {
 

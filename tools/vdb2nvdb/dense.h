@@ -7,8 +7,8 @@
 
 #include <openvdb/openvdb.h>
 
-#include "handle.h"
-#include "options.h"
+#include <nanovdb_convert/handle.h>
+#include <nanovdb_convert/options.h>
 
 namespace vdb2nvdb {
 

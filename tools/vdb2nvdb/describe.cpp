@@ -6,8 +6,8 @@
 #include <cctype>
 #include <cstdio>
 
-#include "error.h"
-#include "format.h"
+#include <nanovdb_convert/error.h>
+#include <nanovdb_convert/format.h>
 #include "read.h"
 
 namespace vdb2nvdb {

@@ -19,10 +19,10 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <nanovdb_convert/format.h>
 #include "convert.h"
 #include "describe.h"
 #include "generate.h"
-#include "format.h"
 #include "temp_file.h"
 #include "testdata/generate_cases.h"
 

@@ -11,8 +11,8 @@
 #include <nanovdb/util/IO.h>
 #include <nanovdb/util/NanoToOpenVDB.h>
 
-#include "error.h"
-#include "format.h"
+#include <nanovdb_convert/error.h>
+#include <nanovdb_convert/format.h>
 #include "../../src/loader/vdb_read.h"
 #include "../../src/loader/vdb_reader_budget.h"
 

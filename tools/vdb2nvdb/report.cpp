@@ -5,8 +5,8 @@
 #include <cstdio>
 #include <sstream>
 
+#include <nanovdb_convert/format.h>
 #include "dense.h"
-#include "format.h"
 
 namespace vdb2nvdb {
 

@@ -8,7 +8,7 @@
 
 #include <openvdb/openvdb.h>
 
-#include "handle.h"
+#include <nanovdb_convert/handle.h>
 
 namespace vdb2nvdb {
 

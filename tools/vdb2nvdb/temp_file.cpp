@@ -13,8 +13,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "error.h"
-#include "format.h"
+#include <nanovdb_convert/error.h>
+#include <nanovdb_convert/format.h>
 
 namespace vdb2nvdb {
 

@@ -13,7 +13,7 @@
 
 #include <nanovdb/util/GridValidator.h>
 
-#include "format.h"
+#include <nanovdb_convert/format.h>
 #include "testdata/seeded.h"
 
 namespace vdb2nvdb {

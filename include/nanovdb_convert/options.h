@@ -1,4 +1,7 @@
-// vdb2nvdb's command-line options, as main.cpp parses them.
+// vdb2nvdb's command-line options, as tools/vdb2nvdb/main.cpp parses them.
+// The conversion steps (src/convert/) read grids, keep_level_sets,
+// tolerance and quiet, the first two of which the .vdb reader
+// (src/loader/vdb_read.cpp) sets; the others are the tool's alone.
 #pragma once
 
 #include <cstdint>

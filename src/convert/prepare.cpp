@@ -1,11 +1,11 @@
 // Choosing and preparing the grids to convert. See prepare.h.
 
-#include "prepare.h"
+#include <nanovdb_convert/prepare.h>
 
 #include <openvdb/tools/LevelSetUtil.h>
 
-#include "error.h"
-#include "format.h"
+#include <nanovdb_convert/error.h>
+#include <nanovdb_convert/format.h>
 
 namespace vdb2nvdb {
 

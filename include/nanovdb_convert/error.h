@@ -1,5 +1,6 @@
 // vdb2nvdb's exit codes, and the error that carries a message and one of
-// them up to main().
+// them up to main() (tools/vdb2nvdb/main.cpp; the .vdb reader,
+// src/loader/vdb_read.cpp, catches it too).
 #pragma once
 
 #include <stdexcept>

@@ -8,7 +8,7 @@
 #include <nanovdb/util/GridHandle.h>
 #include <nanovdb/util/HostBuffer.h>
 
-#include "error.h"
+#include <nanovdb_convert/error.h>
 
 namespace vdb2nvdb {
 

@@ -1,14 +1,14 @@
 // The conversion by NanoVDB's OpenToNanoVDB. See to_nano.h.
 
-#include "to_nano.h"
+#include <nanovdb_convert/to_nano.h>
 
 #include <type_traits>
 
 #include <nanovdb/util/GridChecksum.h>
 #include <nanovdb/util/OpenToNanoVDB.h>
 
-#include "error.h"
-#include "format.h"
+#include <nanovdb_convert/error.h>
+#include <nanovdb_convert/format.h>
 
 namespace vdb2nvdb {
 

@@ -1,6 +1,6 @@
 // vdb2nvdb's messages. See format.h.
 
-#include "format.h"
+#include <nanovdb_convert/format.h>
 
 #include <cstdio>
 

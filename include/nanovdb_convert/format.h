@@ -7,7 +7,7 @@
 
 #include <openvdb/openvdb.h>
 
-#include "options.h"
+#include <nanovdb_convert/options.h>
 
 namespace vdb2nvdb {
 
