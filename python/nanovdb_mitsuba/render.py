@@ -9,9 +9,13 @@ are read, a .vdb through the plugin's reader process, and a level set
 (.vdb or .nvdb) becomes a fog volume (level_set="fog"); no converter runs
 and no temporary file is written. The volume stays in its own world space (use_grid_transform)
 inside a null-BSDF box fitted to it, framed by a camera and lit by a sky and
-a sun (scene.py). The density scale defaults to a mean optical depth of
-about 8 across the box (from the plugin's per-node bounds), and is printed. The render runs in passes with a
-progress bar; the image is written as PNG (sRGB, 8 bit) and EXR (linear).
+a sun (scene.py). The density scale defaults to one from the plugin's
+per-node density bounds (scene.default_scale: a mean optical depth of 8
+across the box if the density were as high as its bounds); it is printed
+with the mean optical depth across the box that it really gives (scale x
+the density's mean over the box x the box's mean extent:
+scene.mean_optical_depth). The render runs in passes with a progress bar;
+the image is written as PNG (sRGB, 8 bit) and EXR (linear).
 `nanovdb-render` is the console script pip installs; from a clone without
 installing: PYTHONPATH=python python3 -m nanovdb_mitsuba.render ...
 """
@@ -25,7 +29,7 @@ if __package__ in (None, ""):  # run as a file: python3 python/nanovdb_mitsuba/r
     __package__ = "nanovdb_mitsuba"
 
 from nanovdb_mitsuba import files, fire, sequence, setup  # noqa: E402
-from nanovdb_mitsuba.scene import framed_scene  # noqa: E402
+from nanovdb_mitsuba.scene import framed_scene, mean_optical_depth  # noqa: E402
 
 
 def progress(done, total, started, out=sys.stderr):
@@ -124,9 +128,11 @@ def render_file(path, out, grid="", spp=64, res=256, variant="llvm_ad_rgb",
                  emission_scale=emission_scale), quiet)
     if not quiet:
         bmin, bmax = info["bbox_min"], info["bbox_max"]
+        depth = mean_optical_depth(info["volume"], info["scale"])
         print(f"{path}: world bbox [{', '.join(f'{v:g}' for v in bmin)}] .. "
               f"[{', '.join(f'{v:g}' for v in bmax)}]; density scale {info['scale']:.6g}"
-              f"{' (default: mean optical depth ~8; change it with --scale)' if scale is None else ''}")
+              f"{' (default, from the density bounds; change it with --scale)' if scale is None else ''}"
+              f"; mean optical depth across the box {depth:.4g}")
     scene = mi.load_dict(scene_dict)
     # Passes of a few samples each: a progress bar, and the same image
     # as one render of `spp` samples per pixel in expectation
@@ -186,7 +192,9 @@ def main(argv=None):
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--integrator", default="volpathlocal")
     ap.add_argument("--scale", type=float, default=None,
-                    help="density scale (default: a mean optical depth of about 8)")
+                    help="density scale (default: 8 / (the mean of the plugin's per-node "
+                         "density bounds x the box's mean extent); the command prints the "
+                         "mean optical depth across the box that the scale gives)")
     ap.add_argument("--filter", default="trilinear", choices=["trilinear", "nearest"])
     fire_args = ap.add_argument_group(
         "fire", "A grid named emission, flame, temperature or heat (case-insensitive; the "

@@ -4,12 +4,65 @@ camera, lit by a sky and a sun."""
 import math
 
 
+# Points of the density lattice (below) on the JIT backends, and on the
+# scalar ones, where each lookup is a call from Python
+LATTICE_POINTS = 1 << 21
+LATTICE_POINTS_SCALAR = 1 << 17
+
+
+def density_lattice(volume, points=None):
+    """The volume's density over its world box (volume.bbox()): eval() (the
+    mean of its channels) at the midpoints of a lattice of cells. The
+    lattice has 2 cells per voxel of the index box along each axis where
+    that makes at most `points` cells (then the samples' mean is exactly
+    the mean of the trilinear density over the box: each half-voxel cell
+    lies within one trilinear piece, where the midpoint rule is exact),
+    else about `points` cells in the same proportions. points None:
+    LATTICE_POINTS on the JIT backends, LATTICE_POINTS_SCALAR on the scalar
+    ones. Returns (values: numpy (n,), the lattice's cells per axis)"""
+    import numpy as np
+    import drjit as dr
+    import mitsuba as mi
+    from .facts import volume_facts
+    jit = dr.is_jit_v(mi.Float)
+    if points is None:
+        points = LATTICE_POINTS if jit else LATTICE_POINTS_SCALAR
+    bb = volume.bbox()
+    n = [2 * max(int(d), 1) for d in volume_facts(volume)["index_dims"]]
+    total = float(n[0]) * n[1] * n[2]
+    if total > points:
+        f = (points / total) ** (1.0 / 3.0)
+        n = [max(1, int(x * f)) for x in n]
+    axes = [float(bb.min[k]) + (np.arange(n[k]) + 0.5) / n[k] * float(bb.max[k] - bb.min[k])
+            for k in range(3)]
+    pos = [a.ravel() for a in np.meshgrid(*axes, indexing="ij")]
+    if jit:
+        it = dr.zeros(mi.Interaction3f, len(pos[0]))
+        it.p = mi.Point3f(*(a.astype(np.float32) for a in pos))
+        v = volume.eval(it)
+        values = np.array(sum(v[c] for c in range(len(v))) / len(v), dtype=np.float64)
+    else:
+        it = dr.zeros(mi.Interaction3f)
+        values = np.empty(len(pos[0]))
+        for i in range(len(values)):
+            it.p = mi.Point3f(pos[0][i], pos[1][i], pos[2][i])
+            v = volume.eval(it)
+            values[i] = sum(float(v[c]) for c in range(len(v))) / len(v)
+    return values, n
+
+
 def default_scale(volume, optical_depth=8.0):
-    """A density scale that gives the volume a mean optical depth of about
-    `optical_depth` across its box: optical_depth / (mean majorant x mean
-    extent), the mean majorant being local_majorant_ratio x max() (what the
-    plugin's per-node bounds say about the average density; it bounds the
-    mean density from above, so the actual depth is lower)."""
+    """A density scale from the plugin's per-node bounds of the density:
+    optical_depth / (B x the box's mean extent), B the mean over the box of
+    those bounds (local_majorant_ratio x max()). A medium as dense as its
+    bounds everywhere would have a mean optical depth of `optical_depth`
+    across its box; the density itself lies below its bounds, most of all
+    where it is sparse or noisy, so its real mean optical depth is lower
+    (mean_optical_depth() gives it; bench/results/render_defaults.md has it
+    for the shared files: from 0.01 to 6.2). The bounds follow where the
+    density is, so a fire stays visible through its smoke, which a real
+    mean of `optical_depth` over the whole box buries (the report's last
+    table). 1 for a volume without density (max() 0)."""
     from .facts import volume_facts
     vmax = volume.max()
     ratio = volume_facts(volume)["local_majorant_ratio"]
@@ -19,6 +72,24 @@ def default_scale(volume, optical_depth=8.0):
     if not (vmax > 0.0) or not (extent > 0.0):
         return 1.0
     return optical_depth / (mean * extent)
+
+
+def mean_optical_depth(volume, scale):
+    """The mean optical depth across the volume's world box (volume.bbox(),
+    the box framed_scene fits the medium to) at density scale `scale`: the
+    optical depth along a line through the box parallel to axis a, averaged
+    over those lines, is scale x rho x L_a (rho: the density's mean over the
+    box, L_a: the box's extent); this is its mean over the three axes, scale
+    x rho x (L_x + L_y + L_z) / 3. rho: the mean of density_lattice(), exact
+    for an index box of up to LATTICE_POINTS / 8 voxels (LLVM, CUDA;
+    LATTICE_POINTS_SCALAR / 8 on the scalar variants), a midpoint estimate
+    beyond; for 3 channels (a colour extinction), their mean. 0 for a volume
+    without density (max() 0)."""
+    if not (volume.max() > 0.0):
+        return 0.0
+    bb = volume.bbox()
+    extent = sum(float(bb.max[k] - bb.min[k]) for k in range(3)) / 3.0
+    return scale * float(density_lattice(volume)[0].mean()) * extent
 
 
 def _project(p, origin, target, fov):
@@ -45,8 +116,11 @@ def _project(p, origin, target, fov):
 def camera(bbox, fov=35.0, direction=(1.0, 0.55, 1.3), fill=0.85):
     """A camera that frames the box: looking at its centre from `direction`,
     at the smallest distance where all 8 corners lie within `fill` of the
-    frame's half-width (so the volume fills most of the image, whatever its
-    proportions)"""
+    frame's half-width and half-height. The box spans that share of the
+    frame where it is widest; the volume inside spans less, as much less
+    as it leaves its box empty seen from `direction` (on the shared files
+    34-69 % of the width and 1-25 % of the pixels:
+    bench/results/render_defaults.md)"""
     c = [0.5 * (bbox.min[k] + bbox.max[k]) for k in range(3)]
     r = 0.5 * math.sqrt(sum((bbox.max[k] - bbox.min[k]) ** 2 for k in range(3)))
     r = max(r, 1e-6)

@@ -8,12 +8,13 @@ field (smoke.%04d.vdb) or a folder of numbered .vdb/.nvdb files. Every frame
 is rendered with one camera, fitted to the union of all frames' world boxes,
 and one density scale: the median over the frames that hold voxels of the
 scale nanovdb-render would choose for each frame alone (scene.default_scale,
-a mean optical depth of about 8), so that nothing jumps or flickers and one
-odd frame does not decide it. That union and that scale come from a scan of
-every frame, summarised in a plan (a small JSON file, plan_json()); with
---plan FILE an existing plan is read instead of scanning, so that the shards
-of a render farm (--shard I/N: every N-th selected frame from the I-th) agree
-on camera and scale without reading each other's frames.
+from the plugin's per-node density bounds), so that nothing jumps or
+flickers and one odd frame does not decide it. That union and that scale
+come from a scan of every frame, summarised in a plan (a small JSON file,
+plan_json()); with --plan FILE an existing plan is read instead of
+scanning, so that the shards of a render farm (--shard I/N: every N-th
+selected frame from the I-th) agree on camera and scale without reading
+each other's frames.
 
 Frames: out.0010.png (sRGB) and out.0010.exr (linear), each written when it
 is done (under a temporary name, then renamed), so that a re-run skips the
