@@ -38,7 +38,7 @@
 // for each backend as src/volumes/sampler_*.cpp compile them for the plugin
 #include <drjit/packet.h>
 #include <drjit/autodiff.h>
-#include <nanovdb_drjit/sampler_impl.h>
+#include <nanovdb_drjit/sampler.h>
 #include <nanovdb_loader/load.h>
 #include <volumes/sampler_setup.h>
 #include <drjit/jit.h>
@@ -72,10 +72,11 @@ using nvdb_test::init_backend;
 using LLVMFloat = dr::DiffArray<JitBackend::LLVM, float>;
 using CUDAFloat = dr::DiffArray<JitBackend::CUDA, float>;
 
-// Every member compiled, as the plugin's sampler_*.cpp compile them
-template class nanovdb_drjit::GridSampler<float>;
-template class nanovdb_drjit::GridSampler<LLVMFloat>;
-template class nanovdb_drjit::GridSampler<CUDAFloat>;
+// The plugin's own lookups: the objects of src/volumes/sampler_*.cpp (the
+// nanovdb_sampler library), linked here as into the plugin, not compiled again
+extern template class nanovdb_drjit::GridSampler<float>;
+extern template class nanovdb_drjit::GridSampler<LLVMFloat>;
+extern template class nanovdb_drjit::GridSampler<CUDAFloat>;
 
 namespace {
 
