@@ -14,6 +14,7 @@
 #include <nanovdb_mitsuba/plugin_variants.h>
 
 #include "memory_source.h"
+#include "placement.h"
 #include "sampler_setup.h"
 
 #include <array>
@@ -1344,24 +1345,10 @@ private:
 
     /// With use_grid_transform: local space = the grid's world space.
     void set_grid_transform(const nanovdb_loader::GridSummary &summary) {
-        // index = inv_mat * (world - vec); relative to the box minimum:
-        // rel = inv_mat * world - (inv_mat * vec + min), composed with
-        // to_local in double precision and rounded once.
-        using Matrix4d = dr::Matrix<double, 4>;
-        Matrix4d index_from_grid = dr::identity<Matrix4d>();
-        for (int r = 0; r < 3; ++r) {
-            double t = 0.0;
-            for (int c = 0; c < 3; ++c) {
-                index_from_grid(r, c) = summary.map_inv[3 * r + c];
-                t += summary.map_inv[3 * r + c] * summary.map_vec[c];
-            }
-            index_from_grid(r, 3) = -t - (double) m_index_min_host[r];
-        }
-        Matrix4d to_local = dr::identity<Matrix4d>();
-        for (int r = 0; r < 4; ++r)
-            for (int c = 0; c < 4; ++c)
-                to_local(r, c) = (double) m_to_local.matrix(r, c);
-        Matrix4d m = index_from_grid * to_local;
+        // rel = inv_mat * (world - vec) - min, composed with to_local in
+        // double precision and rounded once (placement.h)
+        nanovdb_placement::Matrix4d m =
+            nanovdb_placement::rel_from_grid_world(summary, index_min()) * to_local_d();
         m_index_from_world_host = m;
         for (int r = 0; r < 4; ++r)
             for (int c = 0; c < 4; ++c)
@@ -1376,46 +1363,39 @@ private:
     }
 
     /// Corner `corner` (bit k: the high side of axis k) of the cells of the
-    /// volume's index box, [min - 1/2, max + 1/2], through the grid's map
-    /// (in double, rounded once)
+    /// volume's index box through the grid's map (placement.h), rounded once
     ScalarPoint3f box_corner_in_grid_world(const nanovdb_loader::GridSummary &summary,
                                            int corner) const {
-        double idx[3];
-        for (int k = 0; k < 3; ++k)
-            idx[k] = (corner >> k & 1) ? m_index_min_host[k] + m_resolution_host[k] - 0.5
-                                       : m_index_min_host[k] - 0.5;
-        ScalarPoint3f world;
-        for (int r = 0; r < 3; ++r) {
-            double w = summary.map_vec[r];
-            for (int c = 0; c < 3; ++c)
-                w += summary.map_mat[3 * r + c] * idx[c];
-            world[r] = (float) w;
-        }
-        return world;
+        nanovdb_placement::Double3 w = nanovdb_placement::box_corner_in_grid_world(
+            summary, index_min(), { m_resolution_host[0], m_resolution_host[1],
+                                    m_resolution_host[2] }, corner);
+        return ScalarPoint3f((float) w[0], (float) w[1], (float) w[2]);
     }
 
-    /// World -> cell space of the majorant walk, composed in double and
-    /// rounded once: the index position of a lookup (relative to the box
-    /// minimum, values at integers), + 0.5 (voxel ijk covers [ijk, ijk + 1)),
-    /// + the box minimum - the walk's base
+    /// World -> cell space of the majorant walk (placement.h), rounded once
     void set_cell_transform() {
-        using Matrix4d = dr::Matrix<double, 4>;
-        Matrix4d m = dr::identity<Matrix4d>();
-        if (m_use_grid_transform) {
-            m = m_index_from_world_host;
-            for (int r = 0; r < 3; ++r)
-                m(r, 3) += 0.5;
-        } else {
-            // rel + 0.5 = local * resolution (see lookup())
-            for (int r = 0; r < 3; ++r)
-                for (int c = 0; c < 4; ++c)
-                    m(r, c) = (double) m_to_local.matrix(r, c) * (double) m_resolution_host[r];
-        }
-        for (int r = 0; r < 3; ++r)
-            m(r, 3) += double(int64_t(m_index_min_host[r]) - int64_t(m_cell_base_host[r]));
+        nanovdb_placement::Int3 base = { m_cell_base_host[0], m_cell_base_host[1],
+                                         m_cell_base_host[2] };
+        nanovdb_placement::Matrix4d m = m_use_grid_transform
+            ? nanovdb_placement::cell_from_rel_world(m_index_from_world_host, index_min(), base)
+            : nanovdb_placement::cell_from_world_unit_cube(
+                  to_local_d(), index_min(),
+                  { m_resolution_host[0], m_resolution_host[1], m_resolution_host[2] }, base);
         for (int r = 0; r < 4; ++r)
             for (int c = 0; c < 4; ++c)
                 m_cell_from_world(r, c) = dr::opaque<Float>((ScalarFloat) m(r, c));
+    }
+
+    nanovdb_placement::Int3 index_min() const {
+        return { m_index_min_host[0], m_index_min_host[1], m_index_min_host[2] };
+    }
+    /// to_local (world -> local), in double
+    nanovdb_placement::Matrix4d to_local_d() const {
+        nanovdb_placement::Matrix4d m;
+        for (int r = 0; r < 4; ++r)
+            for (int c = 0; c < 4; ++c)
+                m(r, c) = (double) m_to_local.matrix(r, c);
+        return m;
     }
 
 private:
