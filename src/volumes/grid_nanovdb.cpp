@@ -14,6 +14,7 @@
 #include <nanovdb_mitsuba/plugin_variants.h>
 
 #include "memory_source.h"
+#include "index_updates.h"
 #include "placement.h"
 #include "sampler_setup.h"
 
@@ -444,7 +445,7 @@ public:
         if (props.has_property("max_value")) {
             ScalarFloat given = props.get<ScalarFloat>("max_value");
             if (given >= max()) {
-                m_max_value_given = given;
+                m_index.max_value_given = given;
                 m_facts.max = given;
                 for (int k = 0; k < 3; ++k)
                     m_facts.max3[k] = std::max(m_facts.max3[k], given);
@@ -629,7 +630,7 @@ public:
         // An index grid's values (index i + 1 at i; index_grid.h gives the
         // order), differentiable on the JIT backends
         if constexpr (dr::is_jit_v<Float>)
-            if (m_index_tree_bytes != 0)
+            if (m_index.active())
                 cb->put("data", m_sampler.index_values, ParamFlags::Differentiable);
         if (m_sampler.counting()) {
             std::vector<uint64_t> counts = m_sampler.counter_values();
@@ -1084,13 +1085,14 @@ private:
                       "tree and %zu of values%s", m_filename, g.grid.summary().name,
                 g.index_note, g.grid_bytes, g.index_values.size() * sizeof(float),
                 dr::is_jit_v<Float> ? " (differentiable: \"data\")" : "");
-            m_index_options = options;
-            m_index_volume_box = volume_box;
+            // what an update needs to bound the values again (index_updates.h)
+            m_index.options = options;
+            m_index.volume_box = volume_box;
             if constexpr (dr::is_cuda_v<Float>) // (the tree stays on the device: a host copy
-                m_index_tree_host.assign((const uint8_t *) host.get(), // for parameters_changed)
+                m_index.tree_host.assign((const uint8_t *) host.get(), // for parameters_changed)
                                          (const uint8_t *) host.get() + g.grid_bytes);
-            m_index_tree_bytes = g.grid_bytes;
-            m_index_background = g.grid.index_values().background;
+            m_index.tree_bytes = g.grid_bytes;
+            m_index.background = g.grid.index_values().background;
             facts.value_bytes = g.index_values.size() * sizeof(float);
         }
         const loader::GridSummary &summary = g.grid.summary();
@@ -1119,165 +1121,32 @@ private:
         return summary;
     }
 
-    /// An index grid's tree in host memory: the block itself (scalar, LLVM:
-    /// the backend reads it in place), or the copy kept for CUDA
-    const uint8_t *index_tree_host() const {
-        if constexpr (dr::is_cuda_v<Float>)
-            return m_index_tree_host.data();
-        else if constexpr (dr::is_jit_v<Float>)
-            return (const uint8_t *) dr::detach(m_sampler.grid).data();
-        else
-            return (const uint8_t *) m_sampler.grid.get();
-    }
-
-    /**
-     * An index grid's values changed (params.update() after an optimizer
-     * step). On the backend, without reading the values back: the value
-     * policy (clamp: NaN and negatives to 0, +Inf to the largest finite
-     * value; error: a count of NaN and infinities, refused if any) and
-     * max(), the values' largest (with the background and a given
-     * max_value: a bound of every lookup, if looser than max_in_box's).
-     * The per-node majorants, which only the walk (volpathlocal) reads, are
-     * marked stale: rebuilt when it next asks for them (node_majorants()).
-     */
-    void update_index_max() {
-        namespace loader = nanovdb_loader;
-        auto &values = m_sampler.index_values;
-        const uint32_t channels = m_sampler.index_channels;
-        float largest[3] = { m_index_background[0], m_index_background[1], m_index_background[2] };
-        if constexpr (dr::is_jit_v<Float>) {
-            if (m_invalid_values == loader::InvalidValues::Clamp) {
-                Float v = values;
-                v = dr::select(dr::isnan(v) | (v < 0.f), 0.f, v);
-                Float finite_max = dr::max(dr::select(dr::isinf(v), 0.f, v));
-                values = dr::select(dr::isinf(v), finite_max, v);
-            }
-            if (dr::width(values) > 0) {
-                auto detached = dr::detach(values);
-                using D = decltype(detached);
-                D bad = dr::select(dr::isnan(detached) | dr::isinf(detached), 1.f, 0.f),
-                  negative = dr::select(detached < 0.f, 1.f, 0.f);
-                // each channel's largest (3 channels: values interleaved)
-                dr::Array<D, 3> top;
-                if (channels == 3) {
-                    dr::Array<D, 3> v3 = dr::unravel<dr::Array<D, 3>>(detached);
-                    for (int k = 0; k < 3; ++k)
-                        top[k] = dr::max(v3[k]);
-                } else {
-                    top = dr::Array<D, 3>(dr::max(detached));
-                }
-                dr::Array<D, 5> r(top[0], top[1], top[2], dr::sum(bad), dr::sum(negative));
-                dr::eval(r);
-                // (the read waits for the backend's queue: the render and
-                // backward pass before it, on LLVM, finish here)
-                float host[5];
-                for (int k = 0; k < 5; ++k)
-                    host[k] = r[k].entry(0);
-                if (host[3] > 0.f)
-                    Throw("nanovdbvolume: \"%s\": after an update of \"data\": %.0f values are "
-                          "NaN or infinite; only finite values can be rendered. Set "
-                          "invalid_values=\"clamp\" to replace NaN by 0 and +Inf by the "
-                          "largest finite value", m_filename, host[3]);
-                if (host[4] > 0.f)
-                    Log(Warn, "nanovdbvolume: \"%s\": after an update of \"data\": %.0f "
-                              "negative values (invalid_values=\"clamp\" replaces them by 0)",
-                        m_filename, host[4]);
-                for (int k = 0; k < 3; ++k)
-                    largest[k] = std::max(largest[k], host[k]);
-            }
-        } else {
-            for (size_t i = 0; i < values.size(); ++i) {
-                float &x = values[i];
-                if (m_invalid_values == loader::InvalidValues::Clamp && !(x >= 0.f))
-                    x = 0.f;
-                if (!std::isfinite(x))
-                    Throw("nanovdbvolume: \"%s\": after an update of \"data\": a value is "
-                          "NaN or infinite", m_filename);
-                float &l = largest[channels == 3 ? i % 3 : 0];
-                l = std::max(l, x);
-            }
-            if (channels != 3)
-                largest[1] = largest[2] = largest[0];
-        }
-        m_facts.max = std::max({ largest[0], largest[1], largest[2], m_max_value_given });
-        for (int k = 0; k < 3; ++k)
-            m_facts.max3[k] = std::max(largest[k], m_max_value_given);
-        m_sampler.set_bounds(m_facts.max, m_facts.max3);
-        m_index_bounds_stale = true;
-    }
-
     /// The per-node majorants of an index grid whose values changed, again
-    /// (the walk's: volpathlocal asks for local_majorant_ratio() and
-    /// majorant_bound() before every render). Logically const: the bounds of
-    /// the values the volume holds.
+    /// (index_updates.h; the walk's: volpathlocal asks for
+    /// local_majorant_ratio() and majorant_bound() before every render).
+    /// Logically const: the bounds of the values the volume holds.
     void node_majorants() const {
-        if (!m_index_bounds_stale)
+        if (!m_index.stale)
             return;
-        auto t0 = std::chrono::steady_clock::now();
-        const_cast<NanoVDBVolume *>(this)->update_index_bounds();
-        Log(Debug, "nanovdbvolume: \"%s\": per-node majorants of the updated values in %.1f ms",
-            m_filename, std::chrono::duration<double, std::milli>(
-                            std::chrono::steady_clock::now() - t0).count());
-    }
-
-    /**
-     * The per-node majorants and max_in_box() from the values and the tree
-     * in host memory, through the loader's own passes (rebound_index_grid:
-     * validation's value statistics, the value policy, node_majorants,
-     * mean_bound): LLVM and scalar variants read
-     * both in place; CUDA copies the values to the host (its tree's copy
-     * was kept at load).
-     */
-    void update_index_bounds() {
-        namespace loader = nanovdb_loader;
-        auto &values = m_sampler.index_values;
-        size_t count;
-        const float *host_values;
-        std::vector<float> copy;
-        if constexpr (dr::is_jit_v<Float>) {
-            dr::eval(values);
-            dr::sync_thread();
-            count = dr::width(values);
-            if constexpr (dr::is_cuda_v<Float>) {
-                copy.resize(count);
-                dr::store(copy.data(), dr::detach(values));
-                host_values = copy.data();
-            } else {
-                host_values = dr::detach(values).data();
-            }
-        } else {
-            count = values.size();
-            host_values = values.data();
-        }
-        try {
-            loader::PreparedGrid g = loader::rebound_index_grid(
-                m_filename, m_grid_name, index_tree_host(), m_index_tree_bytes,
-                loader::IndexValues{ const_cast<float *>(host_values),
-                                     count / m_sampler.index_channels, m_index_background,
-                                     m_sampler.index_channels },
-                m_index_options);
-            for (const std::string &warning : g.warnings)
-                Log(Warn, "%s", warning);
-            // A max_value above the values stays (gridvolume keeps it too)
-            g.max = std::max(g.max, m_max_value_given);
-            nanovdb_mitsuba::SamplerSetup set =
-                nanovdb_mitsuba::set_up_bounds(m_sampler, g, m_clamp, m_index_volume_box);
-            m_facts.max = set.max;
-            for (int k = 0; k < 3; ++k)
-                m_facts.max3[k] = set.max3[k];
-            m_facts.grid_max = g.grid_max;
-            m_facts.majorant_ratio = m_facts.max > 0.f ? ScalarFloat(set.mean_bound / m_facts.max) : 1.f;
-            m_index_bounds_stale = false;
-        } catch (const loader::Error &e) {
-            Throw("nanovdbvolume: after an update of \"data\": %s", e.what());
-        }
+        auto *self = const_cast<NanoVDBVolume *>(this);
+        nvdb::IndexBounds b =
+            self->m_index.rebound(self->m_sampler, m_clamp, m_filename, m_grid_name);
+        self->m_facts.max = b.max;
+        for (int k = 0; k < 3; ++k)
+            self->m_facts.max3[k] = b.max3[k];
+        self->m_facts.grid_max = b.grid_max;
+        self->m_facts.majorant_ratio = b.majorant_ratio;
     }
 
 public:
     void parameters_changed(const std::vector<std::string> &keys = {}) override {
-        if (m_index_tree_bytes != 0 &&
+        if (m_index.active() &&
             (keys.empty() || std::find(keys.begin(), keys.end(), "data") != keys.end())) {
-            update_index_max();
+            // the value policy and max() on the backend (index_updates.h)
+            nvdb::IndexBounds b = m_index.values_changed(m_sampler, m_filename);
+            m_facts.max = b.max;
+            for (int k = 0; k < 3; ++k)
+                m_facts.max3[k] = b.max3[k];
         }
         Base::parameters_changed(keys);
     }
@@ -1433,14 +1302,8 @@ private:
     uint32_t m_grid_index = 0xffffffffu; // in the file's grids (memory sources: none)
     // Index grids (differentiable, or OnIndex in the file)
     bool m_differentiable = false;     // make the grid an index grid
-    ScalarFloat m_max_value_given = 0.f; // max_value, kept after updates
-    bool m_index_bounds_stale = false; // values changed since the per-node majorants
     nanovdb_loader::BlindSelection m_blind; // a file's index grid: its values' channel
-    size_t m_index_tree_bytes = 0;     // 0: not an index grid
-    nanovdb_loader::PrepareOptions m_index_options; // to bound it again
-    std::optional<nanovdb_loader::IndexBox> m_index_volume_box;
-    std::vector<uint8_t> m_index_tree_host; // CUDA: the tree, for parameters_changed
-    std::array<float, 3> m_index_background{}; // index 0's value (per channel)
+    nvdb::IndexUpdates<Float> m_index; // an index grid's (differentiable=true)
     /// traverse()'s copies of what it exposes
     struct {
         uint32_t grid_type = 0, grid_class = 0, channels = 1;

@@ -1,0 +1,205 @@
+/*
+    src/volumes/index_updates.h -- an index grid (differentiable=true) whose
+    values changed: params.update() after an optimizer step
+
+    What nanovdbvolume keeps of an index grid at load (its tree's bytes, the
+    loader's options, the background), and the two passes an update needs:
+
+      values_changed()   on the backend, without reading the values back:
+                         the value policy (clamp: NaN and negatives to 0,
+                         +Inf to the largest finite value; error: NaN and
+                         infinities refused, negatives warned about) and
+                         max(), the values' largest (with the background and
+                         a given max_value); the per-node majorants are
+                         marked stale
+      rebound()          the per-node majorants and max_in_box() again, on
+                         the host, from the values and the tree in place,
+                         through the loader's own passes (rebound_index_grid:
+                         validation's value statistics, the value policy,
+                         node_majorants, mean_bound); LLVM and scalar read
+                         both in place, CUDA copies the values (its tree's
+                         copy was kept at load). Only the walk (volpathlocal)
+                         reads these bounds, so the plugin calls this when it
+                         next asks for them.
+*/
+
+#pragma once
+
+#include <mitsuba/core/logger.h>
+
+#include <nanovdb_drjit/sampler.h>
+#include <nanovdb_loader/load.h>
+
+#include "sampler_setup.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <optional>
+#include <string>
+#include <vector>
+
+// In Mitsuba's namespace, as the plugin: its Log and Throw
+namespace mitsuba::nvdb {
+
+/// The bounds of an index grid's values, after an update
+struct IndexBounds {
+    float max = 0.f;                   ///< lookups' bound (max())
+    float max3[3] = { 0.f, 0.f, 0.f }; ///< per channel (Vec3f)
+    float grid_max = 0.f;              ///< the largest stored value (rebound() only)
+    float majorant_ratio = 1.f;        ///< mean local bound / max() (rebound() only)
+};
+
+template <typename Float> struct IndexUpdates {
+    using Sampler = nanovdb_drjit::GridSampler<Float>;
+
+    // Kept at load (the plugin's load())
+    size_t tree_bytes = 0;                               ///< 0: not an index grid
+    nanovdb_loader::PrepareOptions options;              ///< to bound it again
+    std::optional<nanovdb_loader::IndexBox> volume_box;
+    std::vector<uint8_t> tree_host;                      ///< CUDA: the tree's copy
+    std::array<float, 3> background{};                   ///< index 0's value (per channel)
+    float max_value_given = 0.f;                         ///< max_value, kept after updates
+    bool stale = false;                                  ///< values changed since rebound()
+
+    bool active() const { return tree_bytes != 0; }
+
+    /// The tree in host memory: the sampler's block itself (scalar, LLVM:
+    /// the backend reads it in place), or the copy kept for CUDA
+    const uint8_t *tree(const Sampler &s) const {
+        if constexpr (drjit::is_cuda_v<Float>)
+            return tree_host.data();
+        else if constexpr (drjit::is_jit_v<Float>)
+            return (const uint8_t *) drjit::detach(s.grid).data();
+        else
+            return (const uint8_t *) s.grid.get();
+    }
+
+    /// The values changed: the value policy and max() on the backend (see
+    /// above); sets the sampler's bounds and returns them. `filename`: for
+    /// errors
+    IndexBounds values_changed(Sampler &s, const std::string &filename) {
+        namespace dr = drjit;
+        auto &values = s.index_values;
+        const uint32_t channels = s.index_channels;
+        float largest[3] = { background[0], background[1], background[2] };
+        if constexpr (dr::is_jit_v<Float>) {
+            if (options.invalid_values == nanovdb_loader::InvalidValues::Clamp) {
+                Float v = values;
+                v = dr::select(dr::isnan(v) | (v < 0.f), 0.f, v);
+                Float finite_max = dr::max(dr::select(dr::isinf(v), 0.f, v));
+                values = dr::select(dr::isinf(v), finite_max, v);
+            }
+            if (dr::width(values) > 0) {
+                auto detached = dr::detach(values);
+                using D = decltype(detached);
+                D bad = dr::select(dr::isnan(detached) | dr::isinf(detached), 1.f, 0.f),
+                  negative = dr::select(detached < 0.f, 1.f, 0.f);
+                // each channel's largest (3 channels: values interleaved)
+                dr::Array<D, 3> top;
+                if (channels == 3) {
+                    dr::Array<D, 3> v3 = dr::unravel<dr::Array<D, 3>>(detached);
+                    for (int k = 0; k < 3; ++k)
+                        top[k] = dr::max(v3[k]);
+                } else {
+                    top = dr::Array<D, 3>(dr::max(detached));
+                }
+                dr::Array<D, 5> r(top[0], top[1], top[2], dr::sum(bad), dr::sum(negative));
+                dr::eval(r);
+                // (the read waits for the backend's queue: the render and
+                // backward pass before it, on LLVM, finish here)
+                float host[5];
+                for (int k = 0; k < 5; ++k)
+                    host[k] = r[k].entry(0);
+                if (host[3] > 0.f)
+                    Throw("nanovdbvolume: \"%s\": after an update of \"data\": %.0f values are "
+                          "NaN or infinite; only finite values can be rendered. Set "
+                          "invalid_values=\"clamp\" to replace NaN by 0 and +Inf by the "
+                          "largest finite value", filename, host[3]);
+                if (host[4] > 0.f)
+                    Log(Warn, "nanovdbvolume: \"%s\": after an update of \"data\": %.0f "
+                              "negative values (invalid_values=\"clamp\" replaces them by 0)",
+                        filename, host[4]);
+                for (int k = 0; k < 3; ++k)
+                    largest[k] = std::max(largest[k], host[k]);
+            }
+        } else {
+            for (size_t i = 0; i < values.size(); ++i) {
+                float &x = values[i];
+                if (options.invalid_values == nanovdb_loader::InvalidValues::Clamp && !(x >= 0.f))
+                    x = 0.f;
+                if (!std::isfinite(x))
+                    Throw("nanovdbvolume: \"%s\": after an update of \"data\": a value is "
+                          "NaN or infinite", filename);
+                float &l = largest[channels == 3 ? i % 3 : 0];
+                l = std::max(l, x);
+            }
+            if (channels != 3)
+                largest[1] = largest[2] = largest[0];
+        }
+        IndexBounds b;
+        b.max = std::max({ largest[0], largest[1], largest[2], max_value_given });
+        for (int k = 0; k < 3; ++k)
+            b.max3[k] = std::max(largest[k], max_value_given);
+        s.set_bounds(b.max, b.max3);
+        stale = true;
+        return b;
+    }
+
+    /// The per-node majorants and max_in_box() again (see above); sets the
+    /// sampler's bounds and returns them
+    IndexBounds rebound(Sampler &s, bool clamp, const std::string &filename,
+                        const std::string &grid_name) {
+        namespace dr = drjit;
+        namespace loader = nanovdb_loader;
+        auto t0 = std::chrono::steady_clock::now();
+        auto &values = s.index_values;
+        size_t count;
+        const float *host_values;
+        std::vector<float> copy;
+        if constexpr (dr::is_jit_v<Float>) {
+            dr::eval(values);
+            dr::sync_thread();
+            count = dr::width(values);
+            if constexpr (dr::is_cuda_v<Float>) {
+                copy.resize(count);
+                dr::store(copy.data(), dr::detach(values));
+                host_values = copy.data();
+            } else {
+                host_values = dr::detach(values).data();
+            }
+        } else {
+            count = values.size();
+            host_values = values.data();
+        }
+        IndexBounds b;
+        try {
+            loader::PreparedGrid g = loader::rebound_index_grid(
+                filename, grid_name, tree(s), tree_bytes,
+                loader::IndexValues{ const_cast<float *>(host_values),
+                                     count / s.index_channels, background, s.index_channels },
+                options);
+            for (const std::string &warning : g.warnings)
+                Log(Warn, "%s", warning);
+            // A max_value above the values stays (gridvolume keeps it too)
+            g.max = std::max(g.max, max_value_given);
+            nanovdb_mitsuba::SamplerSetup set =
+                nanovdb_mitsuba::set_up_bounds(s, g, clamp, volume_box);
+            b.max = set.max;
+            for (int k = 0; k < 3; ++k)
+                b.max3[k] = set.max3[k];
+            b.grid_max = g.grid_max;
+            b.majorant_ratio = b.max > 0.f ? float(set.mean_bound / b.max) : 1.f;
+            stale = false;
+        } catch (const loader::Error &e) {
+            Throw("nanovdbvolume: after an update of \"data\": %s", e.what());
+        }
+        Log(Debug, "nanovdbvolume: \"%s\": per-node majorants of the updated values in %.1f ms",
+            filename, std::chrono::duration<double, std::milli>(
+                          std::chrono::steady_clock::now() - t0).count());
+        return b;
+    }
+};
+
+} // namespace mitsuba::nvdb
