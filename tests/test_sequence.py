@@ -20,7 +20,7 @@ import pytest
 from conftest import BUILD, ROOT
 
 sys.path.insert(0, str(ROOT / "python"))
-from nanovdb_mitsuba import sequence as seq  # noqa: E402
+from nanovdb_mitsuba import frames as seq_frames, plan as seq_plan  # noqa: E402
 from nanovdb_mitsuba.scene import _project, framed_scene  # noqa: E402
 
 FRAMES = list(range(1, 9))
@@ -66,26 +66,26 @@ def plan(frames_dir):
 
 def test01_patterns_frames_and_shards():
     for spec in ("a/smoke.####.vdb", "a/smoke.%04d.vdb"):
-        p = seq.parse_pattern(spec)
+        p = seq_frames.parse_pattern(spec)
         assert p.path(12) == "a/smoke.0012.vdb" and p.text == "a/smoke.####.vdb"
-    assert seq.parse_pattern("smoke.%d.nvdb").path(7) == "smoke.7.nvdb"
-    assert seq.parse_frames("10-20:5,3") == [3, 10, 15, 20]
-    assert seq.parse_frames("10-120:2") == list(range(10, 121, 2))
+    assert seq_frames.parse_pattern("smoke.%d.nvdb").path(7) == "smoke.7.nvdb"
+    assert seq_frames.parse_frames("10-20:5,3") == [3, 10, 15, 20]
+    assert seq_frames.parse_frames("10-120:2") == list(range(10, 121, 2))
     for bad in ("5-2", "1-3:0", "x", "1/2"):
         with pytest.raises(ValueError):
-            seq.parse_frames(bad)
-    frames = seq.parse_frames("10-120:2")
+            seq_frames.parse_frames(bad)
+    frames = seq_frames.parse_frames("10-120:2")
     for n in (1, 2, 3, 7, 56, 60):
-        shards = [seq.shard_frames(frames, seq.parse_shard(f"{i}/{n}")) for i in range(n)]
+        shards = [seq_frames.shard_frames(frames, seq_frames.parse_shard(f"{i}/{n}")) for i in range(n)]
         flat = [f for s in shards for f in s]
         assert sorted(flat) == frames and len(flat) == len(set(flat))  # each frame once
     for bad in ("3/3", "-1/2", "1", "a/b"):
         with pytest.raises(ValueError):
-            seq.parse_shard(bad)
+            seq_frames.parse_shard(bad)
 
 
 def test02_folder_input_finds_the_frames(frames_dir):
-    p = seq.parse_pattern(str(frames_dir))
+    p = seq_frames.parse_pattern(str(frames_dir))
     assert p.text == str(frames_dir / "smoke.####.vdb")
     assert sorted(p.found()) == [f for f in FRAMES if f != MISSING]
 
@@ -271,12 +271,12 @@ def test08_fire_plan_holds_one_mapping(fire_dir):
                for f in (1, 2, 3))
     # The rule on frames of different maxima: the hottest frame decides
     plan = {}
-    em = seq.emission_mapping(
+    em = seq_plan.emission_mapping(
         mi, plan, "heat", "temperature",
         [{"frame": 1, "emission_max": 0.5}, {"frame": 2, "emission_max": 2.0}, {"frame": 3}],
         {1: [("heat", "float")]}, {})
     assert em["max_frame"] == 2 and em["temperature_scale"] == fire.HOTTEST_KELVIN / 2.0
-    em = seq.emission_mapping(mi, plan, "flame", "radiance",
+    em = seq_plan.emission_mapping(mi, plan, "flame", "radiance",
                               [{"frame": 1, "emission_max": 0.5},
                                {"frame": 2, "emission_max": 4.0}],
                               {1: [("flame", "float")]}, {})
