@@ -95,5 +95,6 @@ stage pytest "pytest"
 # One worker per core, each taking whole files (--dist loadfile: a file's
 # module fixtures, its generated grids and renders, stay in one process;
 # bench/PERF_LOG.md 28). NVDB_PYTEST_WORKERS=0 runs them in this process.
+# --durations: the 20 slowest, where CI's time goes (bench/PERF_LOG.md 29)
 "${PYTHON:-python3}" -m pytest -q tests -p no:cacheprovider \
-  -n "${NVDB_PYTEST_WORKERS:-$(nproc)}" --dist loadfile "$@"
+  -n "${NVDB_PYTEST_WORKERS:-$(nproc)}" --dist loadfile --durations=20 "$@"
