@@ -34,6 +34,7 @@ albedo): the emission shows where the density is, and only with an albedo
 below 1 (nanovdb-render: FIRE_ALBEDO).
 """
 import math
+import os
 
 # In order of preference (see above); matched case-insensitively
 EMISSION_NAMES = ("emission", "flame", "temperature", "heat")
@@ -75,8 +76,6 @@ FIRE_ALBEDO = 0.6
 # sRGB (tests/test_render_fire.py recomputes it).
 FIRE_RGB = (2.7704, 0.5763, 0.0)
 FIRE_KELVIN = 1800.0
-# Mitsuba's Blackbody constants (src/spectra/blackbody.cpp, CODATA 2014)
-_C, _H, _K = 2.99792458e+8, 6.62607004e-34, 1.38064852e-23
 # XYZ -> linear sRGB (Mitsuba's xyz_to_srgb)
 _XYZ_TO_SRGB = ((3.240479, -1.537150, -0.498535),
                 (-0.969256, 1.875991, 0.041556),
@@ -86,25 +85,20 @@ _XYZ_TO_SRGB = ((3.240479, -1.537150, -0.498535),
 def blackbody_xyz(mi, kelvin):
     """CIE XYZ of a blackbody at `kelvin`, in Mitsuba's units: the integral
     over [360, 830] nm of Planck's law (W m^-2 sr^-1 nm^-1, as Mitsuba's
-    `blackbody` spectrum) x mi.cie1931_xyz, times MI_CIE_Y_NORMALIZATION:
-    what the emissiveheterogeneous medium's temperature mode emits (its
-    Y: 414 at 3000 K, 0.106 at 1500 K)."""
-    import numpy as np
-    import drjit as dr
-    lam = np.linspace(360.0, 830.0, 4 * 470 + 1)  # 0.25 nm, as include/nanovdb_mitsuba/blackbody.h
-    if dr.is_jit_v(mi.Float):
-        cie = np.array([np.array(c) for c in mi.cie1931_xyz(mi.Float(lam))])
-    else:  # scalar variants: one wavelength at a time
-        cie = np.array([list(mi.cie1931_xyz(float(x))) for x in lam]).T
-    if not kelvin > 0.0:
-        return [0.0, 0.0, 0.0]
-    metres = lam * 1e-9
-    x = _H * _C / (_K * metres * kelvin)
-    e = np.exp(-x)
-    planck = 1e-9 * 2 * _H * _C * _C * e / (metres ** 5 * (1.0 - e))
-    f = cie * planck
-    integral = ((f[:, 1:] + f[:, :-1]) * 0.5 * np.diff(lam)).sum(axis=1)
-    return [float(v) * mi.MI_CIE_Y_NORMALIZATION for v in integral]
+    `blackbody` spectrum) x the CIE 1931 curves, times
+    MI_CIE_Y_NORMALIZATION: what the emissiveheterogeneous medium's
+    temperature mode emits (its Y: 414 at 3000 K, 0.106 at 1500 K). The
+    medium's own integral (include/nanovdb_mitsuba/blackbody.h), which its
+    plugin exports (src/media/blackbody_xyz.cpp); `mi` is unused, kept for
+    the callers."""
+    import ctypes
+    from nanovdb_mitsuba import plugin_root
+    lib = ctypes.CDLL(os.path.join(plugin_root(), "plugins", "emissiveheterogeneous.so"))
+    lib.nvdb_blackbody_xyz.argtypes = [ctypes.c_double, ctypes.POINTER(ctypes.c_double)]
+    lib.nvdb_blackbody_xyz.restype = None
+    out = (ctypes.c_double * 3)()
+    lib.nvdb_blackbody_xyz(float(kelvin), out)
+    return list(out)
 
 
 def blackbody_rgb(mi, kelvin):
