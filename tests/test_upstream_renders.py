@@ -108,14 +108,12 @@ CANDIDATES = (
 
 
 def in_scalar(param):
-    """Which candidates run in scalar_rgb as well: volpathlocal on the
-    scenes with a grid. Mitsuba's own integrators on nanovdbvolume run in
-    llvm_ad_rgb only, and so do the homogeneous scenes, which take volpath's
-    code (volpathlocal keeps it for every medium it does not track). Time:
-    scalar renders at 128 spp cost 10-23 s each, and at 64 spp three scenes
-    fail the z-test (heavy-tailed weights; bench/PERF_LOG.md 29)."""
+    """Which candidates run in scalar_rgb as well: volpathlocal on every
+    scene (Mitsuba's own integrators on nanovdbvolume: llvm_ad_rgb only).
+    At 64 spp instead of 128, three scenes fail the z-test (heavy-tailed
+    weights; bench/PERF_LOG.md 29)."""
     name, integrator, _ = param.values
-    return integrator == "volpathlocal" and name.startswith("hetero")
+    return integrator == "volpathlocal"
 
 
 @pytest.mark.slow
