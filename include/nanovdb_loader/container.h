@@ -92,6 +92,19 @@ std::vector<GridEntry> list_grids(const std::string &path);
 const GridEntry &select_grid(const std::string &path, const std::vector<GridEntry> &grids,
                              const std::string &selector);
 
+/// The grid or grids a volume reads (select_grids)
+struct GridChoice {
+    const GridEntry *first = nullptr;  ///< the grid (a pair: channels 0-2)
+    const GridEntry *second = nullptr; ///< a pair's channels 3-5, else null
+    std::string name;                  ///< the pair's base name X, else first->name
+};
+
+/// select_grid(), and the 6-channel pair: where a grid X is asked for (or
+/// none is, and the default is "X[0:3]") and the file holds "X[0:3]" and
+/// "X[3:6]" but no X, those two (both must be Vec3f grids)
+GridChoice select_grids(const std::string &path, const std::vector<GridEntry> &grids,
+                        const std::string &selector);
+
 /// Reads and decodes one grid's payload into `dst` (>= entry.grid_size bytes).
 void read_grid(const std::string &path, const GridEntry &entry, void *dst);
 

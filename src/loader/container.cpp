@@ -469,6 +469,42 @@ const GridEntry &select_grid(const std::string &path,
     return *chosen;
 }
 
+/// select_grid(), and the 6-channel pair "X[0:3]", "X[3:6]" (container.h)
+GridChoice select_grids(const std::string &path, const std::vector<GridEntry> &grids,
+                        const std::string &selector) {
+    auto named = [&](const std::string &name) -> const GridEntry * {
+        for (const GridEntry &e : grids)
+            if (e.name == name)
+                return &e;
+        return nullptr;
+    };
+    auto ends_with = [](const std::string &s, const char *tail) {
+        const size_t n = std::strlen(tail);
+        return s.size() > n && s.compare(s.size() - n, n, tail) == 0;
+    };
+    std::string base = selector;
+    if (selector.empty() && !grids.empty()) {
+        const GridEntry &chosen = select_grid(path, grids, "");
+        if (ends_with(chosen.name, "[0:3]"))
+            base = chosen.name.substr(0, chosen.name.size() - 5);
+    }
+    GridChoice c;
+    if (!base.empty() && !named(base) && named(base + "[0:3]") && named(base + "[3:6]")) {
+        c.first = named(base + "[0:3]");
+        c.second = named(base + "[3:6]");
+        for (const GridEntry *e : { c.first, c.second })
+            if (e->grid_type != layout::GRID_TYPE_VEC3F)
+                detail::fail(path, "the 6-channel pair \"" + base + "[0:3]\", \"" + base +
+                                   "[3:6]\" must be two Vec3f grids; \"" + e->name + "\" is " +
+                                   grid_type_name(e->grid_type));
+        c.name = base;
+    } else {
+        c.first = &select_grid(path, grids, selector);
+        c.name = c.first->name;
+    }
+    return c;
+}
+
 /// Reads and decodes one grid's payload into `dst` (>= entry.grid_size bytes).
 void read_grid(const std::string &path, const GridEntry &entry, void *dst) {
     using namespace detail;

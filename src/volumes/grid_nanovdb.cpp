@@ -919,31 +919,9 @@ private:
         namespace loader = nanovdb_loader;
         try {
             std::vector<loader::GridEntry> grids = loader::list_grids(m_filename);
-            auto named = [&](const std::string &name) -> const loader::GridEntry * {
-                for (const loader::GridEntry &e : grids)
-                    if (e.name == name)
-                        return &e;
-                return nullptr;
-            };
-            const loader::GridEntry *first = nullptr, *second = nullptr;
-            std::string base = selector;
-            if (selector.empty() && !grids.empty()) {
-                const loader::GridEntry &chosen = loader::select_grid(m_filename, grids, "");
-                if (chosen.name.size() > 5 &&
-                    chosen.name.compare(chosen.name.size() - 5, 5, "[0:3]") == 0)
-                    base = chosen.name.substr(0, chosen.name.size() - 5);
-            }
-            if (!base.empty() && !named(base) && named(base + "[0:3]") && named(base + "[3:6]")) {
-                first = named(base + "[0:3]");
-                second = named(base + "[3:6]");
-                for (const loader::GridEntry *e : { first, second })
-                    if (e->grid_type != kVec3f)
-                        Throw("nanovdbvolume: \"%s\": the 6-channel pair \"%s[0:3]\", "
-                              "\"%s[3:6]\" must be two Vec3f grids; \"%s\" is %s", m_filename,
-                              base, base, e->name, loader::grid_type_name(e->grid_type));
-            } else {
-                first = &loader::select_grid(m_filename, grids, selector);
-            }
+            // the grid, or the 6-channel pair "X[0:3]", "X[3:6]"
+            loader::GridChoice choice = loader::select_grids(m_filename, grids, selector);
+            const loader::GridEntry *first = choice.first, *second = choice.second;
             m_grid_index = uint32_t(first - grids.data());
             if (!second && first->grid_class == kLevelSet && m_level_set_fog)
                 return load_level_set_as_fog(*first);
@@ -952,7 +930,7 @@ private:
                 m_second = std::make_unique<Sampler>();
                 loader::GridSummary s2 = load_entry(*second, *m_second, m_second_facts, true);
                 check_same_box(summary, s2, first->name, second->name);
-                m_facts.name = base;
+                m_facts.name = choice.name;
             }
             return summary;
         } catch (const loader::Error &e) {

@@ -197,6 +197,45 @@ TEST_CASE("files written by NanoVDB 32.4: list_grids, select_grid, read_grid") {
         CHECK_IO_ERROR(nio::select_grid(path, grids, "99999999999999999999999"), path,
                        "not found", "2: \"\" (float)");
     }
+    SUBCASE("select_grids: the 6-channel pair X[0:3], X[3:6]") {
+        const std::string path = tmp_path("pairs.nvdb");
+        std::vector<Handle> handles;
+        handles.push_back(typed_grid<nanovdb::Vec3f>("S[0:3]", nanovdb::Vec3f(1, 2, 3)));
+        handles.push_back(typed_grid<nanovdb::Vec3f>("S[3:6]", nanovdb::Vec3f(4, 5, 6)));
+        handles.push_back(fog_sphere("density"));
+        handles.push_back(typed_grid<nanovdb::Vec3f>("T", nanovdb::Vec3f(1, 1, 1)));
+        handles.push_back(typed_grid<nanovdb::Vec3f>("T[0:3]", nanovdb::Vec3f(1, 1, 1)));
+        handles.push_back(typed_grid<nanovdb::Vec3f>("T[3:6]", nanovdb::Vec3f(1, 1, 1)));
+        handles.push_back(typed_grid<nanovdb::Vec3f>("U[0:3]", nanovdb::Vec3f(1, 1, 1)));
+        handles.push_back(fog_sphere("U[3:6]"));
+        nanovdb::io::writeGrids(path, handles, nanovdb::io::Codec::NONE);
+        const auto grids = nio::list_grids(path);
+        REQUIRE(grids.size() == 8);
+        // X asked for, no X: the pair
+        nio::GridChoice c = nio::select_grids(path, grids, "S");
+        CHECK(c.first == &grids[0]);
+        CHECK(c.second == &grids[1]);
+        CHECK(c.name == "S");
+        // none asked for, the default is S[0:3]: the pair too
+        c = nio::select_grids(path, grids, "");
+        CHECK(c.first == &grids[0]);
+        CHECK(c.second == &grids[1]);
+        // a grid of that name exists: it, alone
+        c = nio::select_grids(path, grids, "T");
+        CHECK(c.first == &grids[3]);
+        CHECK(c.second == nullptr);
+        CHECK(c.name == "T");
+        // a half of a pair by its own name, an index: one grid
+        c = nio::select_grids(path, grids, "S[3:6]");
+        CHECK(c.first == &grids[1]);
+        CHECK(c.second == nullptr);
+        CHECK(nio::select_grids(path, grids, "2").first == &grids[2]);
+        // a pair whose halves are not both Vec3f
+        CHECK_IO_ERROR(nio::select_grids(path, grids, "U"), path, "6-channel pair",
+                       "\"U[0:3]\", \"U[3:6]\" must be two Vec3f grids", "\"U[3:6]\" is float");
+        // no pair, no grid: select_grid's error
+        CHECK_IO_ERROR(nio::select_grids(path, grids, "V"), path, "\"V\" not found");
+    }
 }
 
 // =====================================================================================
