@@ -75,11 +75,26 @@ void random_box(std::mt19937_64 &rng, np::Int3 &min, np::Int3 &res) {
     for (int k = 0; k < 3; ++k) { min[k] = lo(rng); res[k] = n(rng); }
 }
 
+/// A point of the box [min, min + res) in index space
+void random_index(std::mt19937_64 &rng, const np::Int3 &min, const np::Int3 &res,
+                  long double idx[3]) {
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    for (int k = 0; k < 3; ++k)
+        idx[k] = min[k] + (long double) (u(rng) * res[k]);
+}
+
+/// The walk's base near `min`: a multiple of 4096
+np::Int3 walk_base(const np::Int3 &min) {
+    np::Int3 base;
+    for (int k = 0; k < 3; ++k)
+        base[k] = int32_t(int64_t(min[k]) / 4096 * 4096);
+    return base;
+}
+
 } // namespace
 
 TEST_CASE("rel_from_grid_world undoes the grid's map down to index - min") {
     std::mt19937_64 rng(1);
-    std::uniform_real_distribution<double> u(0.0, 1.0);
     double worst = 0;
     for (int trial = 0; trial < 200; ++trial) {
         GridSummary g = random_map(rng);
@@ -90,8 +105,7 @@ TEST_CASE("rel_from_grid_world undoes the grid's map down to index - min") {
         CHECK(m(3, 3) == 1.0);
         for (int i = 0; i < 20; ++i) {
             long double idx[3], world[3], rel[3];
-            for (int k = 0; k < 3; ++k)
-                idx[k] = min[k] + (long double) (u(rng) * res[k]);
+            random_index(rng, min, res, idx);
             forward(g, idx, world);
             apply(m, world, rel);
             for (int k = 0; k < 3; ++k)
@@ -124,18 +138,15 @@ TEST_CASE("box corners are the box's cells through the map") {
 
 TEST_CASE("cell coordinates: rel + 1/2 + min - base, from the grid's world") {
     std::mt19937_64 rng(3);
-    std::uniform_real_distribution<double> u(0.0, 1.0);
     for (int trial = 0; trial < 100; ++trial) {
         GridSummary g = random_map(rng);
-        np::Int3 min, res, base;
+        np::Int3 min, res;
         random_box(rng, min, res);
-        for (int k = 0; k < 3; ++k)
-            base[k] = int32_t(int64_t(min[k]) / 4096 * 4096);
+        const np::Int3 base = walk_base(min);
         np::Matrix4d rel = np::rel_from_grid_world(g, min);
         np::Matrix4d cell = np::cell_from_rel_world(rel, min, base);
         long double idx[3], world[3], got[3];
-        for (int k = 0; k < 3; ++k)
-            idx[k] = min[k] + (long double) (u(rng) * res[k]);
+        random_index(rng, min, res, idx);
         forward(g, idx, world);
         apply(cell, world, got);
         for (int k = 0; k < 3; ++k)
@@ -147,10 +158,9 @@ TEST_CASE("cell coordinates from the unit cube: [0, 1] spans the box's cells") {
     std::mt19937_64 rng(4);
     std::uniform_real_distribution<double> u(0.0, 1.0);
     for (int trial = 0; trial < 100; ++trial) {
-        np::Int3 min, res, base;
+        np::Int3 min, res;
         random_box(rng, min, res);
-        for (int k = 0; k < 3; ++k)
-            base[k] = int32_t(int64_t(min[k]) / 4096 * 4096);
+        const np::Int3 base = walk_base(min);
         // to_local: a random scale and translation of world
         np::Matrix4d to_local = drjit::identity<np::Matrix4d>();
         for (int k = 0; k < 3; ++k) {

@@ -1214,8 +1214,7 @@ private:
     ScalarPoint3f box_corner_in_grid_world(const nanovdb_loader::GridSummary &summary,
                                            int corner) const {
         nanovdb_placement::Double3 w = nanovdb_placement::box_corner_in_grid_world(
-            summary, index_min(), { m_resolution_host[0], m_resolution_host[1],
-                                    m_resolution_host[2] }, corner);
+            summary, index_min(), box_resolution(), corner);
         return ScalarPoint3f((float) w[0], (float) w[1], (float) w[2]);
     }
 
@@ -1226,8 +1225,7 @@ private:
         nanovdb_placement::Matrix4d m = m_use_grid_transform
             ? nanovdb_placement::cell_from_rel_world(m_index_from_world_host, index_min(), base)
             : nanovdb_placement::cell_from_world_unit_cube(
-                  to_local_d(), index_min(),
-                  { m_resolution_host[0], m_resolution_host[1], m_resolution_host[2] }, base);
+                  to_local_d(), index_min(), box_resolution(), base);
         for (int r = 0; r < 4; ++r)
             for (int c = 0; c < 4; ++c)
                 m_cell_from_world(r, c) = dr::opaque<Float>((ScalarFloat) m(r, c));
@@ -1235,6 +1233,9 @@ private:
 
     nanovdb_placement::Int3 index_min() const {
         return { m_index_min_host[0], m_index_min_host[1], m_index_min_host[2] };
+    }
+    nanovdb_placement::Int3 box_resolution() const {
+        return { m_resolution_host[0], m_resolution_host[1], m_resolution_host[2] };
     }
     /// to_local (world -> local), in double
     nanovdb_placement::Matrix4d to_local_d() const {
