@@ -25,8 +25,22 @@ for t in "${targets[@]}"; do
   [ -x "$bin" ] || { echo "fuzz_campaign: $bin is missing: run scripts/test.sh first" >&2; exit 2; }
   work=build-fuzz/campaign/$t
   mkdir -p "$work/corpus" "$work/findings" "tests/fuzz/corpus/$t"
-  seeds=(tests/fuzz/corpus/$t build-fuzz/seeds)
-  max_len=2500000   # (the typed .nvdb seeds are up to 2.4 MB)
+  # .nvdb: small inputs, read at ~1000 a second against ~250 for the
+  # 1.2-2.4 MB raw typed grids; the typed grids (Fp4/8/16, FpN, Vec3f)
+  # enter zip-compressed (~2 KB each), and the 64 KB cap keeps mutants small
+  seeds=(tests/fuzz/corpus/$t build-fuzz/seeds-zip)
+  max_len=65536
+  if [ "$t" = nvdb ]; then
+    mkdir -p build-fuzz/seeds-zip
+    for g in single_voxel lower_tiles; do
+      for ty in fp4 fp8 fp16 fpn vec3f; do
+        [ -f "build-fuzz/seeds-zip/${g}_${ty}_zip.nvdb" ] ||
+          build/bin/nvdb_make_test_grid "$g" "build-fuzz/seeds-zip/${g}_${ty}_zip.nvdb" \
+            --type "$ty" --codec zip >/dev/null
+      done
+    done
+    find build-fuzz/seeds -type f -size -64k -exec cp -n {} build-fuzz/seeds-zip/ \;
+  fi
   if [ "$t" = vdb ]; then
     seeds=(tests/fuzz/corpus/$t build-fuzz/seeds-vdb)
     max_len=131072  # (a 1.7 MB .vdb reads at a few per second; mutations of
@@ -58,10 +72,20 @@ for t in "${targets[@]}"; do
   findings=$(ls "$work/findings" | wc -l)
   triage=""
   if [ "$t" = vdb ] && [ "$findings" -gt 0 ]; then
-    python3 tests/fuzz/triage_vdb.py "$bin" build "$work"/findings/* > "$work/triage.log" 2>&1 || true
-    contained=$(grep -c '^ok: ' "$work/triage.log" || true)
-    failed=$(grep -c '^FAIL' "$work/triage.log" || true)
-    triage=" (triaged: $contained contained in the reader, $failed FAIL)"
+    # only the findings that no earlier run triaged ($work/triaged.log keeps
+    # every verdict: a finding's name is the hash of its bytes)
+    touch "$work/triaged.log"
+    new_findings=()
+    for f in "$work"/findings/*; do
+      grep -q -- ": $(basename "$f"): " "$work/triaged.log" || new_findings+=("$f")
+    done
+    if [ ${#new_findings[@]} -gt 0 ]; then
+      python3 -u tests/fuzz/triage_vdb.py "$bin" build "${new_findings[@]}" > "$work/triage.log" 2>&1 || true
+      grep -E '^(ok|FAIL): ' "$work/triage.log" >> "$work/triaged.log" || true
+    fi
+    contained=$(grep -c '^ok: ' "$work/triaged.log" || true)
+    failed=$(grep -c '^FAIL' "$work/triaged.log" || true)
+    triage=" (${#new_findings[@]} new; triaged in all: $contained contained in the reader, $failed FAIL)"
   fi
   [ -f "$log" ] || printf '# Fuzz campaign\n\nOne row per run of `scripts/fuzz_campaign.sh` (one core, niced). Executions, coverage (edges) and features are libFuzzer'"'"'s final status line; oom/timeout/crash its counts; findings the artifacts kept.\n\n| start (UTC) | target | seconds | executions | cov | ft | oom/timeout/crash | findings | corpus files (KiB) |\n|---|---|---|---|---|---|---|---|---|\n' > "$log"
   echo "| $start | fuzz_$t | $seconds | ${execs:-?} | ${cov:-?} | ${ft:-?} | ${otc:-?} | $findings$triage | $files ($kb) |" >> "$log"
