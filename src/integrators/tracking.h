@@ -16,8 +16,8 @@
     Both estimators are unbiased for any majorant that bounds the medium's
     extinction (each segment's bound does, scale times the largest value a
     lookup can return there, filter footprint included: majorant_walk.h).
-    Every loop has a bound a valid ray cannot reach (volpathlocal.cpp,
-    LoopBound): the walk's steps and the tentative collisions per flight.
+    Every loop has a bound a valid ray cannot reach (loop_bounds.h): the
+    walk's steps and the tentative collisions per flight, set here.
 */
 
 #pragma once
@@ -30,13 +30,11 @@
 #include <nanovdb_mitsuba/emissive_medium.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 
+#include "loop_bounds.h"
+
 #include <tuple>
 
 NAMESPACE_BEGIN(mitsuba)
-
-/// The loops whose iterations are bounded, as bits of a `tripped` mask
-enum LoopBound : uint32_t { PathLoop = 0, ShadowLoop, WalkLoop, DeltaLoop, RatioLoop,
-                            LoopCount };
 
 template <typename Float, typename Spectrum> struct Tracking {
     MI_IMPORT_TYPES(Medium, MediumPtr, Sampler)
@@ -49,8 +47,10 @@ template <typename Float, typename Spectrum> struct Tracking {
     struct TrackedMedium {
         const Medium *medium;
         const Majorants *volume;
-        ScalarFloat scale;        ///< the medium's density scale
-        ScalarFloat max_majorant; ///< scale x the largest segment bound
+        // The scene's values reach kernels as opaque variables, not as
+        // literals, so that scenes of other scales share compiled kernels
+        Float scale;              ///< the medium's density scale (> 0)
+        Float max_majorant;       ///< scale x the largest segment bound
         bool stochastic;          ///< its lookups take random offsets (stochastic filters)
         const Emissive *emissive; ///< the medium's emission (nullptr: it emits none)
     };
@@ -87,8 +87,7 @@ template <typename Float, typename Spectrum> struct Tracking {
                                                   const Float &tmax, const Float &coarse_depth,
                                                   Mask &active) {
         auto [mint, maxt] = medium_range(k, ray, tmax, active);
-        WalkRay wr = k.volume->walk_ray(
-            ray, Float(k.scale > 0.f ? coarse_depth / k.scale : 0.f), active);
+        WalkRay wr = k.volume->walk_ray(ray, coarse_depth / k.scale, active);
         return { mint, maxt, wr };
     }
 
@@ -166,7 +165,7 @@ template <typename Float, typename Spectrum> struct Tracking {
      */
     static void next_collision(const TrackedMedium &k, const WalkRay &wr, Flight &flight) {
         flight.searching = flight.alive;
-        const ScalarFloat scale = k.scale;
+        const Float scale = k.scale;
         dr::tie(flight) = dr::while_loop(
             dr::make_tuple(flight), [](const Flight &f) { return f.searching; },
             [k, wr, scale](Flight &f) {
@@ -209,7 +208,7 @@ template <typename Float, typename Spectrum> struct Tracking {
             Sampler *sampler;
             DRJIT_STRUCT(Loop, flight, state, sampler)
         } ls = { begin_flight(k, wr, mint, maxt, sampler, active), state, sampler };
-        const ScalarFloat scale = k.scale;
+        const Float scale = k.scale;
         dr::tie(ls) = dr::while_loop(
             dr::make_tuple(ls), [](const Loop &ls) { return ls.flight.alive; },
             [k, wr, scale, loop, collide](Loop &ls) {

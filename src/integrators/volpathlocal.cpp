@@ -15,6 +15,8 @@
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
 
+#include "loop_bounds.h"
+#include "tracked_media.h"
 #include "tracking.h"
 
 #include <atomic>
@@ -145,31 +147,32 @@ public:
                     Medium, MediumPtr, PhaseFunctionContext, Volume)
     using Tracker = Tracking<Float, Spectrum>;
     using TrackedMedium = typename Tracker::TrackedMedium;
+    using Trips = LoopTrips<Float>;
 
     VolumetricPathLocalMajorants(const Properties &props) : Base(props) {
         m_coarse_depth = props.get<ScalarFloat>("coarse_optical_depth", 2.f);
         if (!(m_coarse_depth >= 0.f) || !std::isfinite(m_coarse_depth))
             Throw("volpathlocal: coarse_optical_depth must be a finite value >= 0, got %f",
                   m_coarse_depth);
+        // (an opaque variable: integrators of other depths share kernels)
+        m_coarse_depth_var = dr::opaque<Float>(m_coarse_depth);
         m_max_ratio = props.get<ScalarFloat>("max_majorant_ratio", 0.5f);
         if (!(m_max_ratio >= 0.f && m_max_ratio <= 1.f))
             Throw("volpathlocal: max_majorant_ratio must be in [0, 1], got %f", m_max_ratio);
-        if constexpr (dr::is_jit_v<Float>)
-            m_trips = dr::zeros<UInt32>(LoopCount);
     }
 
     // volpathlocal: which media to track, found anew for every render; the
     // loop bounds' trips reported after it
     TensorXf render(Scene *scene, Sensor *sensor, UInt32 seed = 0, uint32_t spp = 0,
                     bool develop = true, bool evaluate = true) override {
-        if (trip_counts_ready()) // trips of earlier renders not reported yet
-            report_trips();
+        if (m_trips.ready()) // trips of earlier renders not reported yet
+            m_trips.report();
         prepare(scene, true);
         TensorXf image = Base::render(scene, sensor, seed, spp, develop, evaluate);
         // (a JIT image not evaluated yet: its trips are reported by the next
         // render(), to_string() or traverse(), so as not to evaluate it here)
-        if ((evaluate && !recording()) || trip_counts_ready())
-            report_trips();
+        if ((evaluate && !recording_frozen_function<Float>()) || m_trips.ready())
+            m_trips.report();
         return image;
     }
 
@@ -178,7 +181,7 @@ public:
         // How many lanes the loop bounds stopped so far (per loop in
         // to_string()): 0 unless something is wrong
         m_trip_total_host = 0;
-        for (uint32_t n : trip_counts())
+        for (uint32_t n : m_trips.counts())
             m_trip_total_host += n;
         cb->put("loop_bound_trips", m_trip_total_host, ParamFlags::NonDifferentiable);
         // How many media the last render tracked through the walk
@@ -358,7 +361,7 @@ public:
                     if (dr::none_or<false>(in_k))
                         continue; // (scalar variants: not this medium)
                     typename Tracker::Collision c = Tracker::delta_tracking(
-                        k, ray, si.t, m_coarse_depth, sampler, in_k);
+                        k, ray, si.t, m_coarse_depth_var, sampler, in_k);
                     dr::masked(mei, in_k) = c.mei;
                     // volpathlocal: an emissive medium's emission along the flight
                     if (k.emissive)
@@ -548,11 +551,11 @@ public:
             // volpathlocal: the loop bound
             Mask moved = depth != depth_before || dr::any(ray.o != ray_before.o) ||
                          dr::any(ray.d != ray_before.d);
-            bound_loop(PathLoop, moved, active, ls.stalls, ls.steps, ls.tripped);
+            Trips::bound_loop(PathLoop, moved, active, ls.stalls, ls.steps, ls.tripped);
         },
         "volpathlocal: path");
 
-        record_trips(ls.tripped, active); // volpathlocal
+        m_trips.record(ls.tripped, active); // volpathlocal
         return { ls.result, ls.valid_ray };
     }
 
@@ -667,7 +670,8 @@ public:
                     if (dr::none_or<false>(in_k))
                         continue;
                     auto [tr, tripped_k] = Tracker::ratio_tracking(
-                        k, ray, dr::minimum(si.t, remaining_dist), m_coarse_depth, sampler, in_k);
+                        k, ray, dr::minimum(si.t, remaining_dist), m_coarse_depth_var, sampler,
+                        in_k);
                     dr::masked(transmittance, in_k) *= tr;
                     dr::masked(ls.tripped, in_k) |= tripped_k;
                 }
@@ -740,8 +744,8 @@ public:
             }
 
             // volpathlocal: the loop bound
-            bound_loop(ShadowLoop, dr::any(ray.o != origin_before), active, ls.stalls,
-                       ls.steps, ls.tripped);
+            Trips::bound_loop(ShadowLoop, dr::any(ray.o != origin_before), active, ls.stalls,
+                              ls.steps, ls.tripped);
         },
         "volpathlocal: emitter sampling");
 
@@ -754,11 +758,7 @@ public:
 
     std::string to_string() const override {
         // volpathlocal: its own name, the tracking's settings, the loop bounds' trips
-        report_trips();
-        std::vector<uint32_t> trips = trip_counts();
-        std::string trip_list;
-        for (uint32_t i = 0; i < LoopCount; ++i)
-            trip_list += tfm::format("%s%s: %u", i ? ", " : "", kLoopNames[i], trips[i]);
+        m_trips.report();
         return tfm::format("VolumetricPathLocalMajorants[\n"
                            "  max_depth = %i,\n"
                            "  rr_depth = %i,\n" // volpathlocal: and the four below
@@ -768,7 +768,7 @@ public:
                            "  loop bound trips = [%s]\n"
                            "]",
                            m_max_depth, m_rr_depth, m_coarse_depth, m_max_ratio, // volpathlocal
-                           m_tracked.size(), trip_list);
+                           m_tracked.size(), m_trips.list());
     }
 
     Float mis_weight(Float pdf_a, Float pdf_b) const {
@@ -782,119 +782,20 @@ public:
 
 private:
     // =====================================================================
-    //  volpathlocal: the media to track
+    //  volpathlocal: the media to track (tracked_media.h)
     // =====================================================================
 
-    /// Reads what a medium exposes: "sigma_t" and "scale" (as heterogeneous)
-    struct FindParameters final : public TraversalCallback {
-        Object *sigma_t = nullptr;
-        ScalarFloat scale = 1.f;
-        bool has_scale = false;
-        void put_value(std::string_view name, void *value, uint32_t,
-                       const std::type_info &type) override {
-            if (name == "scale" && type == typeid(ScalarFloat)) {
-                scale = *static_cast<const ScalarFloat *>(value);
-                has_scale = true;
-            }
-        }
-        void put_object(std::string_view name, Object *value, uint32_t) override {
-            if (name == "sigma_t")
-                sigma_t = value;
-        }
-    };
-
-    /**
-     * Finds the media to track: every medium of the scene (on shapes,
-     * sensors, emitters) that exposes a sigma_t volume offering local
-     * majorants and a scale, and whose own majorant is scale x that
-     * volume's max() (so that scale x a segment's bound is a majorant of
-     * its extinction, as its global one is). Done on every render (a scale
-     * may have changed), and on the first sample() for a scene that render()
-     * did not see.
-     */
+    /// Finds the media to track (tracked_media.h), on every render (a scale
+    /// may have changed), and on the first sample() for a scene that
+    /// render() did not see
     void prepare(const Scene *scene, bool force) const {
         if (!force && m_prepared_for.load(std::memory_order_acquire) == scene)
             return; // the common case: no lock per sample() call
         std::lock_guard<std::mutex> guard(m_prepare_mutex);
         if (!force && m_prepared_for.load(std::memory_order_relaxed) == scene)
             return;
-        std::vector<const Medium *> media;
-        auto add = [&](const Medium *m) {
-            if (m && std::find(media.begin(), media.end(), m) == media.end())
-                media.push_back(m);
-        };
-        for (const auto &shape : scene->shapes()) {
-            add(shape->interior_medium());
-            add(shape->exterior_medium());
-        }
-        for (const auto &sensor : scene->sensors())
-            add(sensor->medium());
-        for (const auto &emitter : scene->emitters())
-            add(emitter->medium());
-        std::vector<TrackedMedium> tracked;
-        for (const Medium *m : media) {
-            FindParameters p;
-            const_cast<Medium *>(m)->traverse(&p);
-            using Majorants = LocalMajorants<Float, Spectrum>;
-            const Majorants *v = p.sigma_t ? dynamic_cast<const Majorants *>(p.sigma_t) : nullptr;
-            const Volume *volume = p.sigma_t ? dynamic_cast<const Volume *>(p.sigma_t) : nullptr;
-            // (scale 0: nothing to track, and no collision either way)
-            if (!v || !volume || !p.has_scale || !(p.scale > 0.f))
-                continue;
-            // volpathlocal: an emissive medium (emissive_medium.h) is always
-            // tracked here, where its emission is added; its majorant is
-            // scale x max() by construction. (Not tracked, e.g. its sigma_t
-            // not a nanovdbvolume: the medium warns that its emission is left out)
-            using Emissive = EmissiveMedium<Float, Spectrum>;
-            if (const Emissive *e = dynamic_cast<const Emissive *>(m)) {
-                e->set_emission_rendered();
-                tracked.push_back({ m, v, p.scale, p.scale * v->majorant_bound(),
-                                    v->stochastic_lookups(), e });
-                continue;
-            }
-            // (the check evaluates a kernel: not while a frozen function records)
-            if (!recording() && !majorant_is_scale_times_max(m, p.scale * volume->max())) {
-                Log(Debug, "volpathlocal: a medium's majorant is not scale x max(): "
-                           "tracked as volpath does");
-                continue;
-            }
-            // A volume of (nearly) one density: the walk would cost its steps
-            // and save no null collisions; track it as volpath does
-            if (v->local_majorant_ratio() > m_max_ratio) {
-                Log(Debug, "volpathlocal: local majorants average %.2f of the global one "
-                           "(above max_majorant_ratio = %.2f): tracked as volpath does",
-                    v->local_majorant_ratio(), m_max_ratio);
-                continue;
-            }
-            tracked.push_back({ m, v, p.scale, p.scale * v->majorant_bound(),
-                                v->stochastic_lookups(), nullptr });
-        }
-        Log(Debug, "volpathlocal: %zu of %zu media tracked through local majorants",
-            tracked.size(), media.size());
-        m_tracked = std::move(tracked);
+        m_tracked = TrackedMedia<Float, Spectrum>::find(scene, m_max_ratio);
         m_prepared_for.store(scene, std::memory_order_release);
-    }
-
-    /// Whether a medium's majorant (at any point: heterogeneous media have
-    /// one) is `expected` in every channel, to float rounding
-    static bool majorant_is_scale_times_max(const Medium *m, ScalarFloat expected) {
-        if constexpr (dr::is_jit_v<Float>) {
-            MediumInteraction3f mei = dr::zeros<MediumInteraction3f>(1);
-            UnpolarizedSpectrum maj = m->get_majorant(mei, true);
-            dr::eval(maj);
-            for (size_t c = 0; c < dr::size_v<UnpolarizedSpectrum>; ++c) {
-                float value = dr::slice(maj[c], 0);
-                if (!(std::abs(value - expected) <= 1e-5f * std::abs(expected)))
-                    return false;
-            }
-        } else {
-            MediumInteraction3f mei = dr::zeros<MediumInteraction3f>();
-            UnpolarizedSpectrum maj = m->get_majorant(mei, true);
-            for (size_t c = 0; c < dr::size_v<UnpolarizedSpectrum>; ++c)
-                if (!(std::abs(maj[c] - expected) <= 1e-5f * std::abs(expected)))
-                    return false;
-        }
-        return true;
     }
 
     /// The lanes of `active` whose medium is tracked
@@ -905,113 +806,16 @@ private:
         return tracked;
     }
 
-    // =====================================================================
-    //  volpathlocal: loop bounds, every loop ends whatever the input
-    // =====================================================================
-
-    /*
-     * Each loop stops a lane after more iterations than a valid ray can
-     * take, and counts it; render() warns, and to_string() and traverse()
-     * ("loop_bound_trips") show the counts. A trip means a bug or an input
-     * outside what the integrator supports; the lane then ends as if it had
-     * left the medium (or the path had been absorbed), so the image is
-     * finite but biased there.
-     *  - path, shadow ray: kMaxStalls iterations in a row in which the path
-     *    neither scattered nor moved (every valid iteration does one of the
-     *    two, or ends the path), or kMaxLoopSteps in all;
-     *  - walk: a flight's steps beyond twice the cell faces its segment can
-     *    cross (tracking.h, begin_flight);
-     *  - delta, ratio tracking: tentative collisions beyond the Poisson tail
-     *    of the global majorant's optical depth (tracking.h, begin_flight).
-     */
-    static constexpr const char *kLoopNames[LoopCount] = { "path", "shadow ray", "walk",
-                                                           "delta tracking", "ratio tracking" };
-    static constexpr uint32_t kMaxStalls = 16;
-    static constexpr uint32_t kMaxLoopSteps = 1u << 24;
-
-    /// One iteration of the path or shadow loop done: `progress` where it
-    /// scattered or moved
-    void bound_loop(LoopBound loop, const Mask &progress, Mask &active, UInt32 &stalls,
-                    UInt32 &steps, UInt32 &tripped) const {
-        stalls = dr::select(progress, 0u, stalls + 1u);
-        steps += 1u;
-        Mask trip = active && (stalls >= kMaxStalls || steps >= kMaxLoopSteps);
-        dr::masked(tripped, trip) |= (1u << loop);
-        active &= !trip;
-    }
-
-    /// Adds a sample's trips (bits of `tripped`) to the counters
-    void record_trips(const UInt32 &tripped, const Mask &active) const {
-        if constexpr (dr::is_jit_v<Float>) {
-            for (uint32_t i = 0; i < LoopCount; ++i)
-                dr::scatter_reduce(ReduceOp::Add, m_trips, UInt32(1), UInt32(i),
-                                   active && (tripped & (1u << i)) != 0u);
-        } else {
-            for (uint32_t i = 0; i < LoopCount; ++i)
-                if (active && (tripped & (1u << i)))
-                    m_scalar_trips[i].fetch_add(1, std::memory_order_relaxed);
-        }
-    }
-
-    /// Inside the recording of a frozen function (dr.freeze): no reads
-    static bool recording() {
-        if constexpr (dr::is_jit_v<Float>)
-            return jit_flag(JitFlag::FreezingScope);
-        else
-            return false;
-    }
-
-    /// Whether reading the counters evaluates nothing (no pending render,
-    /// and not inside a frozen function's recording)
-    bool trip_counts_ready() const {
-        if constexpr (dr::is_jit_v<Float>) {
-            if (recording())
-                return false;
-            VarState state = jit_var_state(m_trips.index());
-            return state == VarState::Evaluated || state == VarState::Literal;
-        } else {
-            return true;
-        }
-    }
-
-    std::vector<uint32_t> trip_counts() const {
-        std::vector<uint32_t> out(LoopCount);
-        if constexpr (dr::is_jit_v<Float>) {
-            UInt32 trips = m_trips;
-            dr::eval(trips);
-            dr::store(out.data(), trips);
-        } else {
-            for (uint32_t i = 0; i < LoopCount; ++i)
-                out[i] = m_scalar_trips[i].load();
-        }
-        return out;
-    }
-
-    /// After a render: warns about the trips since the last report
-    void report_trips() const {
-        std::vector<uint32_t> trips = trip_counts();
-        std::lock_guard<std::mutex> guard(m_prepare_mutex);
-        for (uint32_t i = 0; i < LoopCount; ++i) {
-            uint32_t fresh = trips[i] - m_trips_reported[i];
-            if (fresh)
-                Log(Warn, "volpathlocal: the %s loop's bound stopped %u lanes in this render "
-                          "(%u in all): a bug or an unsupported input; please report it with "
-                          "the scene", kLoopNames[i], fresh, trips[i]);
-            m_trips_reported[i] = trips[i];
-        }
-    }
-
     ScalarFloat m_coarse_depth;
+    Float m_coarse_depth_var; ///< the same, as a kernel parameter
     ScalarFloat m_max_ratio;
     mutable std::vector<TrackedMedium> m_tracked;
     mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
     mutable std::mutex m_prepare_mutex;
-    mutable UInt32 m_trips;                             ///< per LoopBound (JIT)
-    mutable std::atomic<uint32_t> m_scalar_trips[LoopCount] = {}; ///< (scalar)
-    mutable uint32_t m_trips_reported[LoopCount] = {};
+    LoopTrips<Float> m_trips; ///< the lanes each loop bound stopped (loop_bounds.h)
     uint32_t m_trip_total_host = 0, m_tracked_host = 0; ///< traverse()'s copies
 
-    MI_TRAVERSE_CB(Base, m_trips)
+    MI_TRAVERSE_CB(Base, m_coarse_depth_var, m_trips.jit_counts)
 };
 
 MI_EXPORT_PLUGIN(VolumetricPathLocalMajorants)

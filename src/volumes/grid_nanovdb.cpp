@@ -14,6 +14,7 @@
 #include <nanovdb_mitsuba/plugin_variants.h>
 
 #include "memory_source.h"
+#include "grid_load.h"
 #include "index_updates.h"
 #include "placement.h"
 #include "sampler_setup.h"
@@ -322,7 +323,7 @@ public:
 
         std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
         if (invalid == "clamp")
-            m_invalid_values = nanovdb_loader::InvalidValues::Clamp;
+            m_load.settings.invalid_values = nanovdb_loader::InvalidValues::Clamp;
         else if (invalid != "error")
             Throw("nanovdbvolume: \"%s\": invalid value \"%s\" for invalid_values, must be "
                   "one of: \"error\" or \"clamp\"", m_filename, invalid);
@@ -356,13 +357,14 @@ public:
         if (props.has_property("accel"))
             Log(Debug, "nanovdbvolume: \"%s\": accel=%s has no effect (no texture units: the "
                        "tree is traversed)", m_filename, props.get<bool>("accel"));
-        m_raw = props.get<bool>("raw", false);
+        m_load.settings.raw = props.get<bool>("raw", false);
         const bool count_lookups = props.get<bool>("count_lookups", false);
         // Differentiable values: the grid becomes an index grid (its tree)
         // and one Float array of its active values, exposed as "data"
-        m_differentiable = props.get<bool>("differentiable", false);
-        m_blind.channel = std::string(props.get<std::string_view>("blind_channel", ""));
-        m_blind.component = (uint32_t) props.get<uint32_t>("blind_component", 0);
+        m_load.settings.differentiable = props.get<bool>("differentiable", false);
+        nanovdb_loader::BlindSelection &blind = m_load.settings.blind;
+        blind.channel = std::string(props.get<std::string_view>("blind_channel", ""));
+        blind.component = (uint32_t) props.get<uint32_t>("blind_component", 0);
         // level_set: what a file's level set becomes. The default keeps what
         // each kind of file gave before: vdb2nvdb's fog for a .vdb, the
         // stored distances for a .nvdb (vdb2nvdb fogs the level sets it
@@ -371,7 +373,7 @@ public:
         std::string_view level_set = props.get<std::string_view>("level_set",
                                                                  vdb_file ? "fog" : "distance");
         if (level_set == "fog")
-            m_level_set_fog = true;
+            m_load.settings.level_set_fog = true;
         else if (level_set != "distance")
             Throw("nanovdbvolume: \"%s\": invalid level_set \"%s\", must be one of: \"fog\" "
                   "or \"distance\"", m_filename, level_set);
@@ -380,13 +382,22 @@ public:
                   ".vdb files; this volume comes from %s, which holds none", m_filename,
                   vol_file ? "a .vol file" : "memory");
 
+        // What the load takes from these properties (grid_load.h); a
+        // filter's reach: a tricubic stencil reaches 1.5 voxels, a ring of 2
+        m_load.settings.filename = m_filename;
+        m_load.settings.clamp = m_clamp;
+        m_load.settings.reach = m_filter == Filter::Nearest               ? 0
+                                : m_filter == Filter::StochasticTricubic ? 2
+                                                                         : 1;
+
         // The grid (a second one for 6 channels: channels 3 to 5)
         nanovdb_loader::GridSummary summary;
         std::optional<nanovdb_loader::IndexBox> box; // the volume's box, if not the active one
         if (!memory) {
             std::string selector(grid_object ? "" : props.get<std::string_view>("grid", ""));
-            summary = nanovdb_loader::is_vdb_path(m_filename) ? load_vdb(selector)
-                                                               : load_file(selector);
+            summary = nanovdb_loader::is_vdb_path(m_filename)
+                          ? m_load.vdb_file(selector, m_sampler)
+                          : m_load.nvdb_file(selector, m_sampler, m_second);
         } else {
             nanovdb_loader::BuildOptions options;
             options.background = props.get<ScalarFloat>("background", 0.f);
@@ -406,23 +417,23 @@ public:
                         (unsigned long long) built.left_out, options.threshold);
                 const bool six = memory->six_channels;
                 if (half == 0) {
-                    summary = load_memory(options.name, built.bytes.data(), built.bytes.size(),
-                                          box, m_sampler, m_facts, six);
+                    summary = m_load.memory(options.name, built.bytes.data(),
+                                            built.bytes.size(), box, m_sampler, m_load.facts, six);
                 } else {
                     m_second = std::make_unique<Sampler>();
-                    load_memory(options.name, built.bytes.data(), built.bytes.size(), box,
-                                *m_second, m_second_facts, six);
+                    m_load.memory(options.name, built.bytes.data(), built.bytes.size(), box,
+                                  *m_second, m_load.second_facts, six);
                 }
             }
         }
         m_channel_count = m_second ? 6
-                          : m_facts.grid_type == kVec3f || m_sampler.index_channels == 3 ? 3
+                          : m_load.facts.grid_type == kVec3f || m_sampler.index_channels == 3 ? 3
                                                                                           : 1;
-        if (m_differentiable && m_channel_count == 6)
+        if (m_load.settings.differentiable && m_channel_count == 6)
             Throw("nanovdbvolume: \"%s\": differentiable=true is not supported for a 6-channel "
                   "volume (its values are two grids of 3 channels, not one index grid); use "
                   "two 3-channel volumes, or leave differentiable out", m_filename);
-        m_grid_name = m_facts.name;
+        m_grid_name = m_load.facts.name;
         // Stochastic filters' offsets in eval(): a hash of the position and
         // of this seed, so that volumes of other files or grids (a medium's
         // density and albedo) are dithered independently, and a scene
@@ -445,11 +456,11 @@ public:
         if (props.has_property("max_value")) {
             ScalarFloat given = props.get<ScalarFloat>("max_value");
             if (given >= max()) {
-                m_index.max_value_given = given;
-                m_facts.max = given;
+                m_load.index.max_value_given = given;
+                m_load.facts.max = given;
                 for (int k = 0; k < 3; ++k)
-                    m_facts.max3[k] = std::max(m_facts.max3[k], given);
-                m_sampler.set_bounds(m_facts.max, m_facts.max3);
+                    m_load.facts.max3[k] = std::max(m_load.facts.max3[k], given);
+                m_sampler.set_bounds(m_load.facts.max, m_load.facts.max3);
             } else {
                 Log(Warn, "nanovdbvolume: \"%s\": max_value = %f is below the largest value "
                           "lookups return (%f): a majorant that small would bias renders, "
@@ -460,7 +471,7 @@ public:
             m_sampler.enable_counters();
         Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
             m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
-            m_facts.grid_bytes, max());
+            m_load.facts.grid_bytes, max());
     }
 
     // =====================================================================
@@ -477,7 +488,7 @@ public:
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
         if (m_channel_count == 6)
             Throw("eval(): the nanovdbvolume \"%s\" has 6 channels: use eval_6()", m_filename);
-        if (m_channel_count == 3 && is_spectral_v<Spectrum> && m_raw)
+        if (m_channel_count == 3 && is_spectral_v<Spectrum> && m_load.settings.raw)
             Throw("eval(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for a "
                   "spectrum, but its conversion into spectra was disabled (raw=true)",
                   m_filename, m_grid_name);
@@ -497,7 +508,7 @@ public:
         MI_MASKED_FUNCTION(ProfilerPhase::TextureEvaluate, active);
         if (m_channel_count == 6)
             Throw("eval_1(): the nanovdbvolume \"%s\" has 6 channels: use eval_6()", m_filename);
-        if (m_channel_count == 3 && is_spectral_v<Spectrum> && !m_raw)
+        if (m_channel_count == 3 && is_spectral_v<Spectrum> && !m_load.settings.raw)
             Throw("eval_1(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for "
                   "a scalar value, but its conversion into spectra was requested (raw=false)",
                   m_filename, m_grid_name);
@@ -529,7 +540,7 @@ public:
         if (m_channel_count != 3)
             Throw("eval_3(): the nanovdbvolume \"%s\" (grid \"%s\") holds %s, not a 3D vector",
                   m_filename, m_grid_name, channels_str());
-        if (is_spectral_v<Spectrum> && !m_raw)
+        if (is_spectral_v<Spectrum> && !m_load.settings.raw)
             Throw("eval_3(): the nanovdbvolume \"%s\" (grid \"%s\", Vec3f) was queried for "
                   "a 3D vector, but its conversion into spectra was requested (raw=false)",
                   m_filename, m_grid_name);
@@ -556,18 +567,18 @@ public:
     }
 
     ScalarFloat max() const override {
-        return m_second ? std::max(m_facts.max, m_second_facts.max) : m_facts.max;
+        return m_second ? std::max(m_load.facts.max, m_load.second_facts.max) : m_load.facts.max;
     }
 
     void max_per_channel(ScalarFloat *out) const override {
         if (m_channel_count == 1) {
-            out[0] = m_facts.max;
+            out[0] = m_load.facts.max;
             return;
         }
         for (int k = 0; k < 3; ++k) {
-            out[k] = m_facts.max3[k];
+            out[k] = m_load.facts.max3[k];
             if (m_second)
-                out[3 + k] = m_second_facts.max3[k];
+                out[3 + k] = m_load.second_facts.max3[k];
         }
     }
 
@@ -581,20 +592,21 @@ public:
     void traverse(TraversalCallback *cb) override {
         Base::traverse(cb);
         node_majorants(); // (its facts: an index grid's after an update)
-        m_trav.grid_type = m_facts.grid_type;
-        m_trav.grid_class = m_facts.grid_class;
+        m_trav.grid_type = m_load.facts.grid_type;
+        m_trav.grid_class = m_load.facts.grid_class;
         m_trav.channels = m_channel_count;
         m_trav.bbox_min = m_bbox.min;
         m_trav.bbox_max = m_bbox.max;
         m_trav.max = max();
-        m_trav.grid_bytes = double(m_facts.grid_bytes + m_second_facts.grid_bytes);
+        m_trav.grid_bytes = double(m_load.facts.grid_bytes + m_load.second_facts.grid_bytes);
         m_trav.backend_bytes = double(backend_bytes());
-        m_trav.majorant_bytes = double(m_facts.majorant_bytes + m_second_facts.majorant_bytes);
-        m_trav.scale_bytes = double(m_facts.scale_bytes);
+        m_trav.majorant_bytes =
+            double(m_load.facts.majorant_bytes + m_load.second_facts.majorant_bytes);
+        m_trav.scale_bytes = double(m_load.facts.scale_bytes);
         auto put = [&](const char *name, auto &value) {
             cb->put(name, value, ParamFlags::NonDifferentiable);
         };
-        put("grid_index", m_grid_index);
+        put("grid_index", m_load.grid_index);
         put("grid_type", m_trav.grid_type);
         put("grid_class", m_trav.grid_class);
         put("channels", m_trav.channels);
@@ -603,34 +615,34 @@ public:
         put("world_bbox_min", m_trav.bbox_min);
         put("world_bbox_max", m_trav.bbox_max);
         put("max", m_trav.max);
-        put("grid_max", m_facts.grid_max);
+        put("grid_max", m_load.facts.grid_max);
         put("background", m_background_host);
-        put("local_majorant_ratio", m_facts.majorant_ratio);
+        put("local_majorant_ratio", m_load.facts.majorant_ratio);
         put("grid_bytes", m_trav.grid_bytes);
         put("backend_bytes", m_trav.backend_bytes);
         put("majorant_bytes", m_trav.majorant_bytes);
         put("spectral_scale_bytes", m_trav.scale_bytes);
         put("wrap_clamp", m_clamp);
         // level_set="fog" made this grid, a level set in the file, a fog volume
-        put("level_set_fogged", m_fogged);
+        put("level_set_fogged", m_load.fogged);
         // A .vdb file: converted at load; the class the grid had in the file
         // (grid_class is what it became: a level set becomes a fog volume)
-        put("vdb_imported", m_vdb.imported);
-        if (m_vdb.imported) {
-            put("vdb_source_class", m_vdb.source_class);
-            put("vdb_fogged", m_vdb.fogged);
-            put("vdb_convert_seconds", m_vdb.convert_seconds);
+        put("vdb_imported", m_load.vdb.imported);
+        if (m_load.vdb.imported) {
+            put("vdb_source_class", m_load.vdb.source_class);
+            put("vdb_fogged", m_load.vdb.fogged);
+            put("vdb_convert_seconds", m_load.vdb.convert_seconds);
             // the reader process (nanovdb_loader/vdb_import.h): start to
             // reply, and its peak resident memory
-            put("vdb_reader_seconds", m_vdb.reader_seconds);
-            put("vdb_reader_peak_mb", m_vdb.reader_peak_mb);
+            put("vdb_reader_seconds", m_load.vdb.reader_seconds);
+            put("vdb_reader_peak_mb", m_load.vdb.reader_peak_mb);
         }
-        m_trav.value_bytes = double(m_facts.value_bytes);
+        m_trav.value_bytes = double(m_load.facts.value_bytes);
         put("value_bytes", m_trav.value_bytes);
         // An index grid's values (index i + 1 at i; index_grid.h gives the
         // order), differentiable on the JIT backends
         if constexpr (dr::is_jit_v<Float>)
-            if (m_index.active())
+            if (m_load.index.active())
                 cb->put("data", m_sampler.index_values, ParamFlags::Differentiable);
         if (m_sampler.counting()) {
             std::vector<uint64_t> counts = m_sampler.counter_values();
@@ -646,13 +658,13 @@ public:
         oss << "NanoVDBVolume[" << std::endl
             << "  filename = \"" << m_filename << "\"," << std::endl
             << "  grid = \"" << m_grid_name << "\"," << std::endl
-            << "  grid_type = " << nanovdb_loader::grid_type_name(m_facts.grid_type) << ","
+            << "  grid_type = " << nanovdb_loader::grid_type_name(m_load.facts.grid_type) << ","
             << std::endl
-            << "  grid_class = " << nanovdb_loader::grid_class_name(m_facts.grid_class) << ","
+            << "  grid_class = " << nanovdb_loader::grid_class_name(m_load.facts.grid_class) << ","
             << std::endl;
-        if (m_vdb.imported)
-            oss << "  converted = from .vdb at load (" << m_vdb.convert_seconds << " s)"
-                << (m_vdb.fogged ? ", a level set made a fog volume" : "") << "," << std::endl;
+        if (m_load.vdb.imported)
+            oss << "  converted = from .vdb at load (" << m_load.vdb.convert_seconds << " s)"
+                << (m_load.vdb.fogged ? ", a level set made a fog volume" : "") << "," << std::endl;
         oss
             << "  channels = " << m_channel_count << "," << std::endl
             << "  filter_type = " << FILTER_NAMES[(size_t) m_filter] << "," << std::endl
@@ -664,14 +676,15 @@ public:
             << "  dimensions = " << m_resolution_host << "," << std::endl
             << "  background = " << m_background_host << "," << std::endl
             << "  max = " << max() << "," << std::endl
-            << "  grid_max = " << m_facts.grid_max << "," << std::endl
-            << "  bytes = " << m_facts.grid_bytes + m_second_facts.grid_bytes << "," << std::endl
+            << "  grid_max = " << m_load.facts.grid_max << "," << std::endl
+            << "  bytes = " << m_load.facts.grid_bytes + m_load.second_facts.grid_bytes << ","
+            << std::endl
             << "  backend_bytes = " << backend_bytes() << "," << std::endl
-            << "  majorant_bytes = " << m_facts.majorant_bytes << "," << std::endl
-            << (m_facts.scale_bytes
-                    ? "  spectral_scale_bytes = " + std::to_string(m_facts.scale_bytes) + ",\n"
+            << "  majorant_bytes = " << m_load.facts.majorant_bytes << "," << std::endl
+            << (m_load.facts.scale_bytes
+                    ? "  spectral_scale_bytes = " + std::to_string(m_load.facts.scale_bytes) + ",\n"
                     : std::string())
-            << "  local_majorant_ratio = " << m_facts.majorant_ratio << "," << std::endl;
+            << "  local_majorant_ratio = " << m_load.facts.majorant_ratio << "," << std::endl;
         if (m_sampler.counting()) {
             std::vector<uint64_t> counts = m_sampler.counter_values();
             for (size_t i = 0; i < counts.size(); ++i)
@@ -697,13 +710,13 @@ public:
     // collision stays in its segment).
 
     std::string source_name() const override {
-        return "\"" + m_filename + "\" grid \"" + m_facts.name + "\"";
+        return "\"" + m_filename + "\" grid \"" + m_load.facts.name + "\"";
     }
-    uint32_t grid_class_code() const override { return m_facts.grid_class; }
+    uint32_t grid_class_code() const override { return m_load.facts.grid_class; }
 
     ScalarFloat local_majorant_ratio() const override {
         node_majorants();
-        return m_channel_count == 6 ? 1.f : m_facts.majorant_ratio;
+        return m_channel_count == 6 ? 1.f : m_load.facts.majorant_ratio;
     }
 
     ScalarFloat majorant_bound() const override {
@@ -747,7 +760,6 @@ public:
 
 private:
     static constexpr uint32_t kVec3f = nanovdb_drjit::layout::GRID_TYPE_VEC3F;
-    static constexpr uint32_t kLevelSet = 1; // NanoVDB's GridClass::LevelSet
 
     /// Whether `path` starts as a gridvolume file does ("VOL", version 3)
     static bool is_vol_file(const std::string &path) {
@@ -861,242 +873,12 @@ private:
             spectrum = dr::fmadd(sp, s.weight[corner], spectrum);
             scale = dr::fmadd(sc, s.weight[corner], scale);
         }
-        return spectrum * dr::minimum(scale, m_facts.max);
+        return spectrum * dr::minimum(scale, m_load.facts.max);
     }
-
-    // =====================================================================
-    //  Loading: only the selected grid's bytes, decoded once (the loader)
-    //  into one exact-size allocation that the backend owns (the sampler).
-    //  No host copy is kept, and none is made on LLVM.
-    // =====================================================================
-
-    /// What the plugin reports of a loaded grid
-    struct GridFacts {
-        std::string name;
-        uint32_t grid_type = 0, grid_class = 0;
-        float max = 0.f, grid_max = 0.f;   ///< lookups' bound; the largest stored value
-        float max3[3] = { 0.f, 0.f, 0.f }; ///< per channel (Vec3f)
-        size_t grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0;
-        size_t value_bytes = 0;            ///< an index grid's values
-        ScalarFloat majorant_ratio = 1.f;  ///< mean local bound / max()
-    };
 
     /// The backend's bytes of the grid(s) and what lives beside them
     size_t backend_bytes() const {
-        return m_facts.backend_bytes + m_second_facts.backend_bytes;
-    }
-
-    /**
-     * A .vdb file's grid, converted in memory as vdb2nvdb converts it
-     * (nanovdb_loader/vdb_import.h): only that grid is read, and no file is
-     * written. What was done is kept for traverse() and to_string().
-     */
-    nanovdb_loader::GridSummary load_vdb(const std::string &selector) {
-        nanovdb_loader::VdbGrid g;
-        try {
-            g = nanovdb_loader::import_vdb_grid(m_filename, selector, m_level_set_fog);
-        } catch (const nanovdb_loader::Error &e) {
-            Throw("nanovdbvolume: %s", e.what());
-        }
-        m_vdb.imported = true;
-        m_vdb.source_class = g.source_class;
-        m_vdb.fogged = g.fogged;
-        m_fogged = g.fogged;
-        m_vdb.convert_seconds = g.convert_seconds;
-        m_vdb.reader_seconds = g.reader_seconds;
-        m_vdb.reader_peak_mb = double(g.reader_peak_bytes) / double(1 << 20);
-        m_grid_index = g.index;
-        Log(Debug, "nanovdbvolume: \"%s\": grid \"%s\" read in %.3f s, converted in %.3f s%s "
-            "by nanovdb-vdb-reader (%.3f s, peak %.1f MB)", m_filename, g.name, g.read_seconds,
-            g.convert_seconds, g.fogged ? " (a level set, made a fog volume)" : "",
-            g.reader_seconds, m_vdb.reader_peak_mb);
-        return load_memory(g.name, g.data.get(), g.size, std::nullopt, m_sampler, m_facts, false);
-    }
-
-    /// The file's grid `selector` (or, where a grid X is asked for and the
-    /// file holds "X[0:3]" and "X[3:6]", that pair: 6 channels)
-    nanovdb_loader::GridSummary load_file(const std::string &selector) {
-        namespace loader = nanovdb_loader;
-        try {
-            std::vector<loader::GridEntry> grids = loader::list_grids(m_filename);
-            // the grid, or the 6-channel pair "X[0:3]", "X[3:6]"
-            loader::GridChoice choice = loader::select_grids(m_filename, grids, selector);
-            const loader::GridEntry *first = choice.first, *second = choice.second;
-            m_grid_index = uint32_t(first - grids.data());
-            if (!second && first->grid_class == kLevelSet && m_level_set_fog)
-                return load_level_set_as_fog(*first);
-            loader::GridSummary summary = load_entry(*first, m_sampler, m_facts, second);
-            if (second) {
-                m_second = std::make_unique<Sampler>();
-                loader::GridSummary s2 = load_entry(*second, *m_second, m_second_facts, true);
-                check_same_box(summary, s2, first->name, second->name);
-                m_facts.name = choice.name;
-            }
-            return summary;
-        } catch (const loader::Error &e) {
-            Throw("nanovdbvolume: %s", e.what());
-        }
-    }
-
-    /**
-     * A .nvdb file's level set with level_set="fog": made a fog volume as
-     * vdb2nvdb makes one, by the .vdb reader process (the conversion is
-     * OpenVDB's sdfToFogVolume, and the plugin does not link OpenVDB), then
-     * loaded as the grid it sends back. Only this grid is read.
-     */
-    nanovdb_loader::GridSummary load_level_set_as_fog(const nanovdb_loader::GridEntry &entry) {
-        nanovdb_loader::VdbGrid g = nanovdb_loader::import_nvdb_level_set_as_fog(
-            m_filename, m_grid_index, entry.name);
-        m_fogged = true;
-        Log(Debug, "nanovdbvolume: \"%s\": level set \"%s\" made a fog volume by "
-            "nanovdb-vdb-reader in %.3f s (peak %.1f MB)", m_filename, g.name, g.reader_seconds,
-            double(g.reader_peak_bytes) / double(1 << 20));
-        return load_memory(entry.name, g.data.get(), g.size, std::nullopt, m_sampler, m_facts,
-                           false);
-    }
-
-    nanovdb_loader::GridSummary load_entry(const nanovdb_loader::GridEntry &entry, Sampler &s,
-                                           GridFacts &facts, bool six) {
-        facts.name = entry.name;
-        return load(nanovdb_loader::GridSource::file(m_filename, entry), entry.grid_size,
-                    std::nullopt, s, facts, six);
-    }
-
-    /// The same for a grid in memory: built here (memory_source.h), or a
-    /// .vdb's converted grid; `box`: the volume's box if it is not the
-    /// active one
-    nanovdb_loader::GridSummary load_memory(const std::string &name, const uint8_t *bytes,
-                                            size_t size,
-                                            const std::optional<nanovdb_loader::IndexBox> &box,
-                                            Sampler &s, GridFacts &facts, bool six) {
-        try {
-            facts.name = name;
-            return load(nanovdb_loader::GridSource::memory(m_filename, name, bytes, size), size,
-                        box, s, facts, six);
-        } catch (const nanovdb_loader::Error &e) {
-            Throw("nanovdbvolume: %s", e.what());
-        }
-    }
-
-    /// The two grids of a 6-channel volume must share their active box
-    void check_same_box(const nanovdb_loader::GridSummary &a,
-                        const nanovdb_loader::GridSummary &b, const std::string &name_a,
-                        const std::string &name_b) const {
-        for (int k = 0; k < 3; ++k)
-            if (a.bbox_min[k] != b.bbox_min[k] || a.bbox_max[k] != b.bbox_max[k] ||
-                a.empty != b.empty)
-                Throw("nanovdbvolume: \"%s\": the grids \"%s\" and \"%s\" of a 6-channel "
-                      "volume have different active boxes", m_filename, name_a, name_b);
-    }
-
-    using HostBlock = typename Sampler::HostBlock;
-
-    /// One host block for `bytes` of grid, padded to 64 bytes: the final
-    /// buffer on scalar and LLVM variants (LLVM kernels read host memory in
-    /// place), the staging buffer on CUDA
-    HostBlock allocate(uint64_t bytes, GridFacts &facts) {
-        facts.grid_bytes = (size_t) bytes;
-        facts.backend_bytes = ((facts.grid_bytes + 63) / 64) * 64;
-        HostBlock host(nullptr, std::free);
-        void *ptr = nullptr;
-        if (posix_memalign(&ptr, 64, facts.backend_bytes) != 0 || !ptr)
-            Throw("nanovdbvolume: \"%s\": cannot allocate %zu bytes for grid \"%s\"",
-                  m_filename, facts.grid_bytes, facts.name);
-        host.reset((uint32_t *) ptr);
-        return host;
-    }
-
-    /**
-     * The loader's one call (nanovdb_loader::prepare_grid: decode, validate,
-     * value policy, reader plan, max(), per-node majorants, their mean, and
-     * for spectral Vec3f grids the colours as coefficients) into one host
-     * block, then the hand-off to the backend, into sampler `s`.
-     * `volume_box`: the volume's box if it is not the active one; `six`: one
-     * of the two grids of a 6-channel volume (never converted into spectra).
-     */
-    nanovdb_loader::GridSummary load(const nanovdb_loader::GridSource &source, uint64_t bytes,
-                                     const std::optional<nanovdb_loader::IndexBox> &volume_box,
-                                     Sampler &s, GridFacts &facts, bool six) {
-        namespace loader = nanovdb_loader;
-        HostBlock host = allocate(bytes + (m_differentiable ? 64 : 0), facts);
-        loader::PrepareOptions options;
-        options.invalid_values = m_invalid_values;
-        options.volume_box = volume_box;
-        // max(): what lookups inside the volume can return (its box, and the
-        // ring trilinear stencils reach unless they clamp to the box), not
-        // every value the grid stores; the sampler clamps lookups to it
-        // (a tricubic stencil reaches 1.5 voxels: a ring of 2)
-        const int reach = m_filter == Filter::Nearest ? 0
-                          : m_filter == Filter::StochasticTricubic ? 2 : 1;
-        options.ring = m_clamp ? 0 : reach;
-        options.majorant_ring = std::max(reach, 1);
-        // Spectral variants turn colours into sRGB-model coefficients and a
-        // scale, as gridvolume does (unless raw; never for 6 channels): a
-        // spectrum is scale * S(coefficients), S in [0, 1], scale = 2 max(rgb)
-        if (is_spectral_v<Spectrum> && !m_raw && !six)
-            options.spectral = loader::SpectralConversion{
-                [](const float rgb[3], float coeff[3]) {
-                    ScalarColor3f color(rgb[0], rgb[1], rgb[2]);
-                    float scale = dr::max(color) * 2.f;
-                    dr::Array<float, 3> c = srgb_model_fetch(color / dr::maximum(1e-8f, scale));
-                    for (int k = 0; k < 3; ++k)
-                        coeff[k] = c[k];
-                    return scale;
-                },
-                2.f };
-        options.index_grid = m_differentiable && !six;
-        options.blind = m_blind;
-        loader::PreparedGrid g = loader::prepare_grid(source, host.get(), facts.backend_bytes,
-                                                      options);
-        for (const std::string &warning : g.warnings)
-            Log(Warn, "%s", warning);
-        if (g.grid.is_index_grid()) {
-            // The index grid's tree is smaller than the grid it was made
-            // from, or than the file's grid with its blind data: a block of
-            // its size, so that the backend holds the tree and the values once
-            HostBlock fitted = allocate(g.grid_bytes, facts);
-            std::memcpy(fitted.get(), host.get(), g.grid_bytes);
-            std::memset((uint8_t *) fitted.get() + g.grid_bytes, 0,
-                        facts.backend_bytes - g.grid_bytes);
-            host = std::move(fitted);
-            Log(Info, "nanovdbvolume: \"%s\": grid \"%s\" as an index grid: %s, %zu bytes of "
-                      "tree and %zu of values%s", m_filename, g.grid.summary().name,
-                g.index_note, g.grid_bytes, g.index_values.size() * sizeof(float),
-                dr::is_jit_v<Float> ? " (differentiable: \"data\")" : "");
-            // what an update needs to bound the values again (index_updates.h)
-            m_index.options = options;
-            m_index.volume_box = volume_box;
-            if constexpr (dr::is_cuda_v<Float>) // (the tree stays on the device: a host copy
-                m_index.tree_host.assign((const uint8_t *) host.get(), // for parameters_changed)
-                                         (const uint8_t *) host.get() + g.grid_bytes);
-            m_index.tree_bytes = g.grid_bytes;
-            m_index.background = g.grid.index_values().background;
-            facts.value_bytes = g.index_values.size() * sizeof(float);
-        }
-        const loader::GridSummary &summary = g.grid.summary();
-        facts.grid_type = summary.grid_type;
-        facts.grid_class = summary.grid_class;
-        facts.name = summary.name; // the grid's own name (GridData)
-        facts.grid_max = g.grid_max;
-        // The hand-off to the backend (sampler_setup.h): the sampler owns the
-        // block from here on
-        nanovdb_mitsuba::SamplerSetup set;
-        try {
-            set = nanovdb_mitsuba::set_up_sampler(s, g, std::move(host), facts.backend_bytes / 4,
-                                                  m_clamp, volume_box);
-        } catch (const std::exception &e) {
-            Throw("nanovdbvolume: \"%s\": grid \"%s\" (%zu bytes): %s", m_filename, facts.name,
-                  facts.grid_bytes, e.what());
-        }
-        facts.max = set.max;
-        for (int k = 0; k < 3; ++k) {
-            facts.max3[k] = set.max3[k];
-            m_cell_base_host[k] = set.cell_base[k];
-        }
-        facts.majorant_bytes = set.majorant_bytes;
-        facts.scale_bytes = set.scale_bytes;
-        facts.majorant_ratio = facts.max > 0.f ? ScalarFloat(set.mean_bound / facts.max) : 1.f;
-        return summary;
+        return m_load.facts.backend_bytes + m_load.second_facts.backend_bytes;
     }
 
     /// The per-node majorants of an index grid whose values changed, again
@@ -1104,27 +886,27 @@ private:
     /// local_majorant_ratio() and majorant_bound() before every render).
     /// Logically const: the bounds of the values the volume holds.
     void node_majorants() const {
-        if (!m_index.stale)
+        if (!m_load.index.stale)
             return;
         auto *self = const_cast<NanoVDBVolume *>(this);
         nvdb::IndexBounds b =
-            self->m_index.rebound(self->m_sampler, m_clamp, m_filename, m_grid_name);
-        self->m_facts.max = b.max;
+            self->m_load.index.rebound(self->m_sampler, m_clamp, m_filename, m_grid_name);
+        self->m_load.facts.max = b.max;
         for (int k = 0; k < 3; ++k)
-            self->m_facts.max3[k] = b.max3[k];
-        self->m_facts.grid_max = b.grid_max;
-        self->m_facts.majorant_ratio = b.majorant_ratio;
+            self->m_load.facts.max3[k] = b.max3[k];
+        self->m_load.facts.grid_max = b.grid_max;
+        self->m_load.facts.majorant_ratio = b.majorant_ratio;
     }
 
 public:
     void parameters_changed(const std::vector<std::string> &keys = {}) override {
-        if (m_index.active() &&
+        if (m_load.index.active() &&
             (keys.empty() || std::find(keys.begin(), keys.end(), "data") != keys.end())) {
             // the value policy and max() on the backend (index_updates.h)
-            nvdb::IndexBounds b = m_index.values_changed(m_sampler, m_filename);
-            m_facts.max = b.max;
+            nvdb::IndexBounds b = m_load.index.values_changed(m_sampler, m_filename);
+            m_load.facts.max = b.max;
             for (int k = 0; k < 3; ++k)
-                m_facts.max3[k] = b.max3[k];
+                m_load.facts.max3[k] = b.max3[k];
         }
         Base::parameters_changed(keys);
     }
@@ -1158,7 +940,7 @@ private:
             m_index_min_box[k] = bmin[k];
             m_resolution_box[k] = (int32_t) extent;
         }
-        m_sampler.set_box(m_index_min_box, m_resolution_box, m_facts.grid_type, m_clamp);
+        m_sampler.set_box(m_index_min_box, m_resolution_box, m_load.facts.grid_type, m_clamp);
         // Per-file values reach kernels as opaque variables, so that loading
         // another file does not recompile them.
         for (int k = 0; k < 3; ++k)
@@ -1220,8 +1002,8 @@ private:
 
     /// World -> cell space of the majorant walk (placement.h), rounded once
     void set_cell_transform() {
-        nanovdb_placement::Int3 base = { m_cell_base_host[0], m_cell_base_host[1],
-                                         m_cell_base_host[2] };
+        nanovdb_placement::Int3 base = { m_load.cell_base[0], m_load.cell_base[1],
+                                         m_load.cell_base[2] };
         nanovdb_placement::Matrix4d m = m_use_grid_transform
             ? nanovdb_placement::cell_from_rel_world(m_index_from_world_host, index_min(), base)
             : nanovdb_placement::cell_from_world_unit_cube(
@@ -1255,34 +1037,19 @@ private:
     Matrix4f m_cell_from_world;        // world -> the walk's cell space
 
     // Host
-    GridFacts m_facts, m_second_facts;
-    /// A .vdb file's grid, converted at load (load_vdb)
-    struct {
-        bool imported = false, fogged = false;
-        uint32_t source_class = 0; ///< OpenVDB's GridClass of the grid in the file
-        double convert_seconds = 0;
-        double reader_seconds = 0, reader_peak_mb = 0; ///< the reader process's
-    } m_vdb;
+    /// The load's settings, and what it learnt: the grids' facts, a .vdb's
+    /// import, an index grid's update state (grid_load.h)
+    nvdb::GridLoad<Float, Spectrum> m_load;
     ScalarVector3i m_index_min_host;
     ScalarVector3i m_resolution_host;
     int32_t m_index_min_box[3] = {}, m_resolution_box[3] = {};
-    bool m_raw = false;                // Vec3f: no spectral conversion
     ScalarFloat m_background_host = 0.f;
-    int32_t m_cell_base_host[3] = { 0, 0, 0 };     // the walk's base (multiple of 4096)
     dr::Matrix<double, 4> m_index_from_world_host; // use_grid_transform, in double
     Filter m_filter = Filter::Trilinear;
     uint32_t m_seed = 0;               // stochastic filters' hash seed (eval())
     bool m_clamp = false;              // wrap_mode "clamp": positions clamped to the box
     bool m_use_grid_transform = false;
-    bool m_level_set_fog = false;      // level_set: "fog" (true) or "distance"
-    bool m_fogged = false;             // a level set of the file, made a fog volume
-    nanovdb_loader::InvalidValues m_invalid_values = nanovdb_loader::InvalidValues::Error;
     std::string m_filename, m_grid_name;
-    uint32_t m_grid_index = 0xffffffffu; // in the file's grids (memory sources: none)
-    // Index grids (differentiable, or OnIndex in the file)
-    bool m_differentiable = false;     // make the grid an index grid
-    nanovdb_loader::BlindSelection m_blind; // a file's index grid: its values' channel
-    nvdb::IndexUpdates<Float> m_index; // an index grid's (differentiable=true)
     /// traverse()'s copies of what it exposes
     struct {
         uint32_t grid_type = 0, grid_class = 0, channels = 1;
