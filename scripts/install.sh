@@ -79,29 +79,34 @@ then
   "$PYTHON" -m pip install -q "${PIP_FLAGS[@]}" "${PIP_PACKAGES[@]}"
 fi
 
+CHECK_VARIANTS=""
 if [ "$BUILD_TESTS" = ON ]; then
   # The variants the tests run: every CPU variant (tests/conftest.py's
-  # variants_all) and the GPU kit's CUDA ones (rgb, mono, spectral:
-  # scripts/gpu_kit_pack.sh). No test runs the two polarized CUDA variants;
-  # their code is the polarized LLVM variants' on the CUDA backend, which
-  # the others compile, so a test build leaves them out (about a minute of a
-  # 2-core build; bench/PERF_LOG.md 28). A plain `pip install .` builds all,
-  # and so does a test build where a GPU is (the tests run every variant).
-  VARIANTS=$("$PYTHON" -c 'import ctypes, mitsuba as mi
+  # variants_all), and where a GPU is, every variant. Without a GPU no test
+  # can run the CUDA variants: a test build leaves them out, and checks the
+  # code of the GPU kit's (rgb, mono, spectral) with g++ -fsyntax-only
+  # instead (NVDB_CHECK_VARIANTS: a quarter of the time that compiling them
+  # takes; bench/PERF_LOG.md 30). scripts/gpu_kit_pack.sh builds them for
+  # the kit. A plain `pip install .` builds all.
+  read -r VARIANTS CHECK_VARIANTS < <("$PYTHON" -c 'import ctypes, mitsuba as mi
 try:
     ctypes.CDLL("libcuda.so.1"); gpu = True
 except OSError:
     gpu = False
-print("" if gpu else ";".join(v for v in mi.variants()
-                              if not (v.startswith("cuda") and v.endswith("polarized"))))')
+cpu = [v for v in mi.variants() if not v.startswith("cuda")]
+kit = [v for v in mi.variants() if v.startswith("cuda") and not v.endswith("polarized")]
+print("-" if gpu else ";".join(cpu), "-" if gpu else ";".join(kit))')
+  [ "$VARIANTS" != "-" ] || VARIANTS=""
+  [ "$CHECK_VARIANTS" != "-" ] || CHECK_VARIANTS=""
 fi
 
 # One compile per core: ninja's default (cores + 2) makes a 2-core build
 # ~15 % slower (the large files compete for caches and memory)
 export CMAKE_BUILD_PARALLEL_LEVEL=${CMAKE_BUILD_PARALLEL_LEVEL:-$(nproc)}
-echo "== pip install . (build in build/, tests ${BUILD_TESTS}, variants: ${VARIANTS:-all})"
+echo "== pip install . (build in build/, tests ${BUILD_TESTS}, variants: ${VARIANTS:-all}${CHECK_VARIANTS:+; checked only: $CHECK_VARIANTS})"
 # (not -q: pip prints the build's output when it fails; --config-settings, not -C: Debian 12's pip 23.0 lacks -C)
 "$PYTHON" -m pip install "${PIP_FLAGS[@]}" --no-build-isolation --no-deps \
   --config-settings build-dir=build \
   --config-settings cmake.define.NVDB_BUILD_TESTS="$BUILD_TESTS" \
-  --config-settings cmake.define.NVDB_VARIANTS="$VARIANTS" .
+  --config-settings cmake.define.NVDB_VARIANTS="$VARIANTS" \
+  --config-settings cmake.define.NVDB_CHECK_VARIANTS="$CHECK_VARIANTS" .

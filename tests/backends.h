@@ -22,6 +22,16 @@ inline bool cuda_available() {
     return available;
 }
 
+// NVDB_TEST_CUDA=0: a build that leaves the CUDA variants out (NVDB_VARIANTS;
+// a test build without a GPU, scripts/install.sh) compiles no CUDA case: its
+// CUDA code is checked by nvdb_syntax_check (CMakeLists.txt), and the cases
+// are reported as skipped
+#ifndef NVDB_TEST_CUDA
+#  define NVDB_TEST_CUDA 1
+#endif
+/// A CUDA test case's decorator: skipped without a GPU
+#define NVDB_CUDA_CASE_SKIP doctest::skip(!NVDB_TEST_CUDA || !nvdb_test::cuda_available())
+
 /// Starts the Dr.Jit backend of UInt32 (nothing for scalars)
 template <typename UInt32> void init_backend() {
     if constexpr (drjit::is_jit_v<UInt32>) {

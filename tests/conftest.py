@@ -278,3 +278,43 @@ def read_vol(path):
     n = xres * yres * zres * ch
     values = struct.unpack_from(f"<{n}f", data, 48)
     return (xres, yres, zres), bbox, values
+
+
+# NVDB_KERNEL_STATS=DIR: every test's Dr.Jit kernels (their count, cache
+# hits, code generation and LLVM/CUDA compile times) appended to
+# DIR/kernels.jsonl, and the IR of each kernel that took over 0.5 s to
+# compile kept as DIR/<hash>.ll: with a cold kernel cache, compilation is
+# where most of the suite's time goes (bench/PERF_LOG.md 29-30)
+KERNEL_STATS = os.environ.get("NVDB_KERNEL_STATS")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item):
+    if not KERNEL_STATS:
+        yield
+        return
+    import json
+    import time
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # (drops what came before this test)
+    t0 = time.perf_counter()
+    yield
+    wall = time.perf_counter() - t0
+    history = dr.kernel_history()
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    out = Path(KERNEL_STATS)
+    out.mkdir(parents=True, exist_ok=True)
+    kernels = []
+    for k in history:
+        if k.get("type") != dr.KernelType.JIT:
+            continue
+        kernels.append(dict(hash=k["hash"], hit=int(k["cache_hit"]), disk=int(k["cache_disk"]),
+                            ops=k["operation_count"], size=k["size"],
+                            codegen_ms=k["codegen_time"], backend_ms=k["backend_time"],
+                            exec_ms=k["execution_time"]))
+        if k["backend_time"] > 500 and "ir" in k:
+            ll = out / f"{k['hash']}.ll"
+            if not ll.exists():
+                ll.write_text(k["ir"].getvalue())
+    with open(out / "kernels.jsonl", "a") as f:
+        f.write(json.dumps(dict(test=item.nodeid, wall_s=wall, kernels=kernels)) + "\n")

@@ -76,7 +76,9 @@ using CUDAFloat = dr::DiffArray<JitBackend::CUDA, float>;
 // nanovdb_sampler library), linked here as into the plugin, not compiled again
 extern template class nanovdb_drjit::GridSampler<float>;
 extern template class nanovdb_drjit::GridSampler<LLVMFloat>;
+#if NVDB_TEST_CUDA
 extern template class nanovdb_drjit::GridSampler<CUDAFloat>;
+#endif
 
 namespace {
 
@@ -728,8 +730,10 @@ TEST_CASE_TEMPLATE("nearest and trilinear equal PNanoVDB's reads (float, half, f
     check_scalar_lookups<Float>();
 }
 
-TEST_CASE("CUDA: nearest and trilinear equal PNanoVDB's reads" * doctest::skip(!cuda_available())) {
+TEST_CASE("CUDA: nearest and trilinear equal PNanoVDB's reads" * NVDB_CUDA_CASE_SKIP) {
+#if NVDB_TEST_CUDA
     check_scalar_lookups<CUDAFloat>();
+#endif
 }
 
 TEST_CASE_TEMPLATE("every lookup is clamped to max()", Float, float, LLVMFloat) {

@@ -300,8 +300,10 @@ TEST_CASE_TEMPLATE("typed grids: address, level and value equal PNanoVDB's per-t
     check_typed_reads<UInt32>();
 }
 
-TEST_CASE("CUDA: typed grids' reads equal PNanoVDB's" * doctest::skip(!cuda_available())) {
+TEST_CASE("CUDA: typed grids' reads equal PNanoVDB's" * NVDB_CUDA_CASE_SKIP) {
+#if NVDB_TEST_CUDA
     check_typed_reads<dr::CUDAArray<uint32_t>>();
+#endif
 }
 
 TEST_CASE("typed grids: values equal NanoVDB's accessor (Half: F16C of the float grid)") {
