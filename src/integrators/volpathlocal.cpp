@@ -806,6 +806,7 @@ private:
         return tracked;
     }
 
+    // volpathlocal: the tracking's settings and state
     ScalarFloat m_coarse_depth;
     Float m_coarse_depth_var; ///< the same, as a kernel parameter
     ScalarFloat m_max_ratio;
@@ -818,5 +819,5 @@ private:
     MI_TRAVERSE_CB(Base, m_coarse_depth_var, m_trips.jit_counts)
 };
 
-MI_EXPORT_PLUGIN(VolumetricPathLocalMajorants)
+MI_EXPORT_PLUGIN(VolumetricPathLocalMajorants) // volpathlocal: its own name
 NAMESPACE_END(mitsuba)
