@@ -25,61 +25,68 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import harness  # noqa: E402
 
-CHILD = r"""
-import json, statistics, sys, time
-import numpy as np
-sys.path.insert(0, {here!r})
-import drjit as dr, mitsuba as mi
-from scene import turntable_scene, volume_dict
-mi.set_variant({variant!r})
-mi.file_resolver().prepend({build!r})
-jit = dr.is_jit_v(mi.Float)
-def sync():
-    if jit:
-        dr.sync_thread()
-out = {{}}
-for filt in {filters!r}:
-    loads = []
-    desc = dict(volume_dict("nanovdbvolume", {grid!r}, filt), **{extra!r})
-    for k in range(7 if {load_only!r} else 3):
-        t0 = time.perf_counter()
-        vol = mi.load_dict(desc)
-        sync()
-        loads.append(time.perf_counter() - t0)
-    r = {{"load_s": statistics.median(loads)}}
-    if {load_only!r}:
-        out[filt] = r
-        continue
-    if jit:
-        n = 1 << 20
-        pts = np.random.default_rng(1).random((3, n), dtype=np.float32)
-        it = dr.zeros(mi.Interaction3f, n)
-        it.p = mi.Point3f(mi.Float(pts[0]), mi.Float(pts[1]), mi.Float(pts[2]))
-        dr.eval(it.p); sync()
-        ts = []
-        for k in range(6):
-            t0 = time.perf_counter()
-            v = vol.eval_1(it); dr.eval(v); sync()
-            ts.append(time.perf_counter() - t0)
-        r["lookups_per_s"] = n / statistics.median(ts[1:])
-    res, spp = (128, 16) if jit else (64, 16)
-    scene = mi.load_dict(turntable_scene(vol, res, spp, integrator={integrator!r}))
-    ts = []
-    for k in range(4):
-        t0 = time.perf_counter()
-        img = mi.render(scene, sensor=0, spp=spp, seed=k)
+
+def measure(spec):
+    """One process (bench/harness.py): a build's load time, lookup
+    throughput and render time on a grid, per filter"""
+    import time
+    import numpy as np
+    from child_setup import mitsuba_for
+    from scene import turntable_scene, volume_dict
+    dr, mi = mitsuba_for(spec["variant"], spec["build"])
+    jit = dr.is_jit_v(mi.Float)
+
+    def sync():
         if jit:
-            dr.eval(img); sync()
-        ts.append(time.perf_counter() - t0)
-    r["render_s"] = statistics.median(ts[1:])
-    out[filt] = r
-print(json.dumps(out))
-"""
+            dr.sync_thread()
+
+    out = {}
+    for filt in spec["filters"]:
+        loads = []
+        desc = dict(volume_dict("nanovdbvolume", spec["grid"], filt), **spec["extra"])
+        for k in range(7 if spec["load_only"] else 3):
+            t0 = time.perf_counter()
+            vol = mi.load_dict(desc)
+            sync()
+            loads.append(time.perf_counter() - t0)
+        r = {"load_s": statistics.median(loads)}
+        if spec["load_only"]:
+            out[filt] = r
+            continue
+        if jit:
+            n = 1 << 20
+            pts = np.random.default_rng(1).random((3, n), dtype=np.float32)
+            it = dr.zeros(mi.Interaction3f, n)
+            it.p = mi.Point3f(mi.Float(pts[0]), mi.Float(pts[1]), mi.Float(pts[2]))
+            dr.eval(it.p)
+            sync()
+            ts = []
+            for k in range(6):
+                t0 = time.perf_counter()
+                v = vol.eval_1(it)
+                dr.eval(v)
+                sync()
+                ts.append(time.perf_counter() - t0)
+            r["lookups_per_s"] = n / statistics.median(ts[1:])
+        res, spp = (128, 16) if jit else (64, 16)
+        scene = mi.load_dict(turntable_scene(vol, res, spp, integrator=spec["integrator"]))
+        ts = []
+        for k in range(4):
+            t0 = time.perf_counter()
+            img = mi.render(scene, sensor=0, spp=spp, seed=k)
+            if jit:
+                dr.eval(img)
+                sync()
+            ts.append(time.perf_counter() - t0)
+        r["render_s"] = statistics.median(ts[1:])
+        out[filt] = r
+    return out
 
 
 def main():
@@ -108,18 +115,13 @@ def main():
         for variant in a.variants:
             for g in a.grids:
                 for tag, build in zip(("old", "new"), a.builds):
-                    code = CHILD.format(here=HERE, variant=variant, build=os.path.abspath(build),
-                                        grid=os.path.abspath(g), extra=extra,
-                                        load_only=a.load_only, filters=a.filters,
-                                        integrator=a.integrator)
-                    p = subprocess.run([sys.executable, "-c", code], capture_output=True,
-                                       text=True)
-                    if p.returncode != 0:
-                        sys.exit(f"{tag} {variant} {g} failed:\n{p.stdout}\n{p.stderr}")
-                    # the last JSON line (Mitsuba's log, e.g. warnings, goes to stdout too)
-                    # (after any terminal colour codes of the log)
-                    d = json.loads([x[x.index('{"'):] for x in p.stdout.splitlines()
-                                    if '{"' in x][-1])
+                    spec = dict(variant=variant, build=os.path.abspath(build),
+                                grid=os.path.abspath(g), extra=extra, load_only=a.load_only,
+                                filters=a.filters, integrator=a.integrator)
+                    try:
+                        d = harness.run_child("ab:measure", spec)
+                    except harness.ChildFailed as e:
+                        sys.exit(f"{tag} {variant} {g}: {e}")
                     results.setdefault((variant, g), {}).setdefault(tag, []).append(d)
                     print(f"round {r} {variant} {os.path.basename(g)} {tag}: {d}",
                           file=sys.stderr, flush=True)

@@ -13,7 +13,6 @@ of --runs) of volpath + nanovdbvolume and of volpathlocal, and their ratio.
 A measurement, not a test.
 """
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -22,26 +21,32 @@ import tempfile
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
-CHILD = r"""
-import json, statistics, sys, time
-sys.path.insert(0, {here!r})
-from child_setup import mitsuba_for
-dr, mi = mitsuba_for({variant!r}, {build!r})
-from scene import turntable_scene, volume_dict
-out = {{}}
-for res, spp in {sizes!r}:
-    for integrator in ("volpath", "volpathlocal"):
-        vol = mi.load_dict(volume_dict("nanovdbvolume", {nvdb!r}, "trilinear"))
-        scene = mi.load_dict(turntable_scene(vol, res, spp, integrator))
-        times = []
-        for r in range({runs} + 1):
-            t0 = time.perf_counter()
-            img = mi.render(scene, seed=r, sensor=0)
-            dr.eval(img); dr.sync_thread()
-            times.append(time.perf_counter() - t0)
-        out[f"{{res}}x{{spp}}|{{integrator}}"] = statistics.median(times[1:])
-print("RESULT " + json.dumps(out))
-"""
+sys.path.insert(0, HERE)
+import harness  # noqa: E402
+
+
+def measure(spec):
+    """One process (bench/harness.py): the warm render times of volpath and
+    volpathlocal per size on the grid"""
+    import statistics
+    import time
+    from child_setup import mitsuba_for
+    from scene import turntable_scene, volume_dict
+    dr, mi = mitsuba_for(spec["variant"], spec["build"])
+    out = {}
+    for res, spp in spec["sizes"]:
+        for integrator in ("volpath", "volpathlocal"):
+            vol = mi.load_dict(volume_dict("nanovdbvolume", spec["nvdb"], "trilinear"))
+            scene = mi.load_dict(turntable_scene(vol, res, spp, integrator))
+            times = []
+            for r in range(spec["runs"] + 1):
+                t0 = time.perf_counter()
+                img = mi.render(scene, seed=r, sensor=0)
+                dr.eval(img)
+                dr.sync_thread()
+                times.append(time.perf_counter() - t0)
+            out[f"{res}x{spp}|{integrator}"] = statistics.median(times[1:])
+    return out
 
 
 def main():
@@ -61,13 +66,8 @@ def main():
         print("| variant | size | volpath + nanovdbvolume [s] | volpathlocal [s] | ratio |")
         print("|---|---|---:|---:|---:|")
         for variant in a.variants:
-            code = CHILD.format(here=HERE, variant=variant, build=a.build,
-                                nvdb=nvdb, sizes=sizes, runs=a.runs)
-            p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-            lines = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
-            if not lines:
-                raise RuntimeError(f"{variant}: {p.stderr[-3000:]}")
-            r = json.loads(lines[0][7:])
+            r = harness.run_child("far_grid:measure", dict(variant=variant, build=a.build,
+                                                            nvdb=nvdb, sizes=sizes, runs=a.runs))
             for res, spp in sizes:
                 t0, t1 = r[f"{res}x{spp}|volpath"], r[f"{res}x{spp}|volpathlocal"]
                 print(f"| {variant} | {res}^2 x {spp} spp | {t0:.4f} | {t1:.4f} | {t1 / t0:.2f} |",

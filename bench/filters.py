@@ -37,7 +37,6 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 
@@ -56,60 +55,58 @@ CONFIGS = [  # (integrator, plugin, filter): the first is the baseline
     ("volpathlocal", "nanovdbvolume", "stochastic_tricubic"),
 ]
 
-CHILD = r"""
-import json, statistics, sys, time
-import numpy as np
-sys.path.insert(0, {here!r})
-from child_setup import mitsuba_for
-dr, mi = mitsuba_for({variant!r}, {build!r})
-from scene import turntable_scene
-jit = dr.is_jit_v(mi.Float)
+sys.path.insert(0, HERE)
+import harness  # noqa: E402
 
-def scene_for(integrator, plugin, filt, spp):
-    path = {nvdb!r} if plugin == "nanovdbvolume" else {vol!r}
-    vol = {{"type": plugin, "filename": path, "filter_type": filt}}
-    desc = turntable_scene(vol, {res!r}, spp, integrator)
-    for i in range(1, 8):
-        del desc[f"sensor_{{i}}"]
-    return mi.load_dict(desc)
 
-def render(scene, seed):
-    t0 = time.perf_counter()
-    img = mi.render(scene, seed=seed)
-    if jit:
-        dr.sync_thread()
-    return np.array(img, dtype=np.float64)[..., :3], time.perf_counter() - t0
+def measure(spec):
+    """One process (bench/harness.py): the reference (if asked) and each
+    configuration's images and warm render time, on one variant"""
+    from child_setup import mitsuba_for
+    from scene import turntable_scene
+    dr, mi = mitsuba_for(spec["variant"], spec["build"])
+    jit = dr.is_jit_v(mi.Float)
 
-out = {{}}
-if {ref_spp!r}:
-    scene = scene_for("volpathlocal", "nanovdbvolume", "trilinear", {ref_spp!r} // 2)
-    halves = [render(scene, 1000 + k) for k in range(2)]
-    out["ref"] = ((halves[0][0] + halves[1][0]) / 2).tolist()
-    out["ref_half_diff"] = (halves[0][0] - halves[1][0]).tolist()
-    out["ref_time_s"] = sum(h[1] for h in halves)
-for integrator, plugin, filt in {configs!r}:
-    scene = scene_for(integrator, plugin, filt, {spp!r})
-    render(scene, 0)  # (compiles the kernels)
-    imgs, times = [], []
-    for k in range({runs!r}):
-        img, t = render(scene, 1 + k)
-        imgs.append(img.tolist())
-        times.append(t)
-    out["|".join((integrator, plugin, filt))] = {{"time_s": statistics.median(times),
-                                                 "imgs": imgs}}
-print("RESULT " + json.dumps(out))
-"""
+    def scene_for(integrator, plugin, filt, spp):
+        path = spec["nvdb"] if plugin == "nanovdbvolume" else spec["vol"]
+        vol = {"type": plugin, "filename": path, "filter_type": filt}
+        desc = turntable_scene(vol, spec["res"], spp, integrator)
+        for i in range(1, 8):
+            del desc[f"sensor_{i}"]
+        return mi.load_dict(desc)
+
+    def render(scene, seed):
+        t0 = time.perf_counter()
+        img = mi.render(scene, seed=seed)
+        if jit:
+            dr.sync_thread()
+        return np.array(img, dtype=np.float64)[..., :3], time.perf_counter() - t0
+
+    out = {}
+    if spec["ref_spp"]:
+        scene = scene_for("volpathlocal", "nanovdbvolume", "trilinear", spec["ref_spp"] // 2)
+        halves = [render(scene, 1000 + k) for k in range(2)]
+        out["ref"] = ((halves[0][0] + halves[1][0]) / 2).tolist()
+        out["ref_half_diff"] = (halves[0][0] - halves[1][0]).tolist()
+        out["ref_time_s"] = sum(h[1] for h in halves)
+    for integrator, plugin, filt in spec["configs"]:
+        scene = scene_for(integrator, plugin, filt, spec["spp"])
+        render(scene, 0)  # (compiles the kernels)
+        imgs, times = [], []
+        for k in range(spec["runs"]):
+            img, t = render(scene, 1 + k)
+            imgs.append(img.tolist())
+            times.append(t)
+        out["|".join((integrator, plugin, filt))] = {"time_s": statistics.median(times),
+                                                     "imgs": imgs}
+    return out
 
 
 def run_child(a, variant, nvdb, vol, ref_spp):
-    code = CHILD.format(here=HERE, variant=variant, build=a.build, nvdb=nvdb, vol=vol,
-                        res=a.res, spp=a.spp if not variant.startswith("scalar") else a.scalar_spp,
-                        ref_spp=ref_spp, runs=a.runs, configs=CONFIGS)
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    for line in p.stdout.splitlines():
-        if line.startswith("RESULT "):
-            return json.loads(line[7:])
-    raise RuntimeError(f"{variant} {nvdb}: {p.stderr[-3000:]}")
+    spp = a.spp if not variant.startswith("scalar") else a.scalar_spp
+    return harness.run_child("filters:measure", dict(
+        variant=variant, build=a.build, nvdb=nvdb, vol=vol, res=a.res, spp=spp,
+        ref_spp=ref_spp, runs=a.runs, configs=CONFIGS))
 
 
 def main():

@@ -12,44 +12,48 @@ sensor (128^2, 64 spp, trilinear). Prints a markdown table with the ratios
 new/old.
 """
 import argparse
-import json
 import os
-import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import harness  # noqa: E402
 
-CHILD = r"""
-import json, statistics, sys, time
-sys.path.insert(0, {here!r})
-import drjit as dr, mitsuba as mi
-import gpu
-from scene import turntable_scene, volume_dict
-from worker import rss_bytes
-mi.set_variant({variant!r})
-mi.file_resolver().prepend({build!r})
-jit_backend = dr.backend_v(mi.Float)
-# CUDA context and modules first, with another (tiny) grid: a block of the
-# measured grid's size must not be waiting in a pool when it is measured
-warm = mi.load_dict(volume_dict("nanovdbvolume", {warmup!r}, "trilinear"))
-del warm
-dr.sync_thread(); dr.flush_malloc_cache(); dr.detail.malloc_clear_statistics()
-cuda = {variant!r}.startswith("cuda")
-u0 = gpu.used_bytes() if cuda else rss_bytes()
-w0 = dr.detail.malloc_watermark(jit_backend)
-vol = mi.load_dict(volume_dict("nanovdbvolume", {grid!r}, "trilinear"))
-dr.sync_thread()
-held = (gpu.used_bytes() if cuda else rss_bytes()) - u0
-wm = dr.detail.malloc_watermark(jit_backend) - w0
-scene = mi.load_dict(turntable_scene(vol, 128, 64))
-ts = []
-for k in range(6):
-    t0 = time.perf_counter()
-    img = mi.render(scene, sensor=0, spp=64, seed=k)
-    dr.eval(img); dr.sync_thread()
-    ts.append(time.perf_counter() - t0)
-print(json.dumps({{"held": held, "watermark": wm, "render_s": statistics.median(ts[1:])}}))
-"""
+
+def measure(spec):
+    """One process (bench/harness.py): a build's memory held by a grid's
+    volume, its allocator watermark, and the render time"""
+    import statistics
+    import time
+    import gpu
+    from child_setup import mitsuba_for
+    from scene import turntable_scene, volume_dict
+    from worker import rss_bytes
+    dr, mi = mitsuba_for(spec["variant"], spec["build"])
+    jit_backend = dr.backend_v(mi.Float)
+    # CUDA context and modules first, with another (tiny) grid: a block of
+    # the measured grid's size must not be waiting in a pool when it is measured
+    warm = mi.load_dict(volume_dict("nanovdbvolume", spec["warmup"], "trilinear"))
+    del warm
+    dr.sync_thread()
+    dr.flush_malloc_cache()
+    dr.detail.malloc_clear_statistics()
+    cuda = spec["variant"].startswith("cuda")
+    u0 = gpu.used_bytes() if cuda else rss_bytes()
+    w0 = dr.detail.malloc_watermark(jit_backend)
+    vol = mi.load_dict(volume_dict("nanovdbvolume", spec["grid"], "trilinear"))
+    dr.sync_thread()
+    held = (gpu.used_bytes() if cuda else rss_bytes()) - u0
+    wm = dr.detail.malloc_watermark(jit_backend) - w0
+    scene = mi.load_dict(turntable_scene(vol, 128, 64))
+    ts = []
+    for k in range(6):
+        t0 = time.perf_counter()
+        img = mi.render(scene, sensor=0, spp=64, seed=k)
+        dr.eval(img)
+        dr.sync_thread()
+        ts.append(time.perf_counter() - t0)
+    return {"held": held, "watermark": wm, "render_s": statistics.median(ts[1:])}
 
 
 def main():
@@ -66,12 +70,12 @@ def main():
         size = os.path.getsize(g)
         r = {}
         for tag, build in zip(("old", "new"), a.builds):
-            code = CHILD.format(here=HERE, variant=a.variant, build=os.path.abspath(build),
-                                grid=os.path.abspath(g), warmup=os.path.abspath(a.warmup))
-            p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-            if p.returncode != 0:
-                sys.exit(f"{tag} on {g} failed:\n{p.stdout}\n{p.stderr}")
-            r[tag] = json.loads(p.stdout.strip().splitlines()[-1])
+            spec = dict(variant=a.variant, build=os.path.abspath(build),
+                        grid=os.path.abspath(g), warmup=os.path.abspath(a.warmup))
+            try:
+                r[tag] = harness.run_child("memory_ab:measure", spec)
+            except harness.ChildFailed as e:
+                sys.exit(f"{tag} on {g}: {e}")
         rows.append((os.path.basename(g), size, r))
     L = [f"{a.variant}: old = `{a.builds[0]}`, new = `{a.builds[1]}`; held = device memory "
          "in use after − before loading (NVML) on CUDA, RSS on LLVM; render: first sensor of "
