@@ -8,6 +8,7 @@ build/bin/nvdb_make_test_grid, which writes them through NanoVDB's own writer
 active box for gridvolume.
 """
 
+import contextlib
 import os
 import subprocess
 import struct
@@ -28,6 +29,22 @@ SHARED_DATA = Path(os.environ.get("NVDB_SHARED_DATA") or ROOT.parent / "shared" 
 # variant-parametrized tests run on (the GPU kit sets it), instead of
 # scalar_rgb + llvm_ad_rgb (+ cuda_ad_rgb on a GPU) and every variant.
 TEST_VARIANTS = [v for v in os.environ.get("NVDB_TEST_VARIANTS", "").split(",") if v]
+
+
+@contextlib.contextmanager
+def build_dir_lock():
+    """Held while a test runs `pip install .` into the build directory
+    (test_pip_install; test_readme's sh blocks, whose quickstart runs
+    scripts/install.sh): pytest's workers run two files at once, and two
+    builds in one directory would race"""
+    import fcntl
+    BUILD.mkdir(parents=True, exist_ok=True)
+    with open(BUILD / ".pip-install.lock", "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def need_shared_data(*names):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import BUILD, ROOT
+from conftest import BUILD, ROOT, build_dir_lock
 
 
 def _run(cmd, cwd, env, timeout=900):
@@ -63,10 +63,11 @@ def test_pip_install_fresh_venv(venv, tmp_path):
     env = _clean_env(venv)
     py = venv / "bin" / "python"
     # pip install . (the build requirements come from the system's site-packages)
-    _run([py, "-m", "pip", "install", "--disable-pip-version-check", "--no-build-isolation",
-          "--no-deps", "--config-settings", f"build-dir={BUILD}",
-          "--config-settings", "cmake.define.NVDB_BUILD_TESTS=ON", "."],
-         cwd=ROOT, env=env)
+    with build_dir_lock():
+        _run([py, "-m", "pip", "install", "--disable-pip-version-check", "--no-build-isolation",
+              "--no-deps", "--config-settings", f"build-dir={BUILD}",
+              "--config-settings", "cmake.define.NVDB_BUILD_TESTS=ON", "."],
+             cwd=ROOT, env=env)
     site = _site_packages(venv)
     pkg = site / "nanovdb_mitsuba"
     installed = [pkg / "plugins" / "nanovdbvolume.so", pkg / "plugins" / "volpathlocal.so",

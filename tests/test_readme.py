@@ -39,7 +39,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, build_dir_lock
 
 README = ROOT / "README.md"
 DOCS = ROOT / "docs"
@@ -179,7 +179,8 @@ def _run_block(b, tmp):
     where = f"{b.file}:{b.line} ({b.section})"
     if b.lang == "sh":
         script = [l for l in b.text.splitlines() if l.split("#")[0].strip() not in NOT_RUN_LINES]
-        _run(["bash", "-e", "-o", "pipefail", "-c", "\n".join(script)], where)
+        with build_dir_lock():  # (the quickstart's pip install . builds in build/)
+            _run(["bash", "-e", "-o", "pipefail", "-c", "\n".join(script)], where)
     elif b.lang == "python":
         cells = [c for c in RUN if c.file == b.file and c.section == b.section
                  and c.lang == "python" and c.line <= b.line and not c.skip]

@@ -11,7 +11,9 @@
                     reader process, as vdb2nvdb makes one
       vdb_file()    a .vdb file's grid, converted in memory by the reader
                     process (nanovdb_loader/vdb_import.h): no file is written
-      memory()      a grid built in memory (memory_source.h), or converted
+      built()       a volume from memory (memory_source.h): its grid(s) built
+                    by the loader (nanovdb_loader/build.h), then loaded
+      memory()      a grid in memory: built, or a .vdb's converted one
 
     The plugin (grid_nanovdb.cpp) keeps its properties and the Volume
     interface, and holds one GridLoad: the settings a load takes from the
@@ -26,6 +28,7 @@
 #include <mitsuba/render/srgb.h>
 
 #include <nanovdb_drjit/sampler.h>
+#include <nanovdb_loader/build.h>
 #include <nanovdb_loader/load.h>
 #include <nanovdb_loader/vdb_import.h>
 
@@ -153,6 +156,35 @@ template <typename Float, typename Spectrum> struct GridLoad {
         } catch (const nanovdb_loader::Error &e) {
             Throw("nanovdbvolume: %s", e.what());
         }
+    }
+
+    /// A volume from memory (memory_source.h): its grid built by the loader
+    /// (nanovdb_loader/build.h) and loaded, and for 6 channels the second
+    /// grid into `second`; `box` becomes the volume's box where it is not
+    /// the active one (a dense source's whole box)
+    template <typename Source>
+    GridSummary built(const Source &source, const nanovdb_loader::BuildOptions &options,
+                      Sampler &s, std::unique_ptr<Sampler> &second,
+                      std::optional<IndexBox> &box) {
+        GridSummary summary;
+        const bool six = source.six_channels;
+        for (int half = 0; half < (six ? 2 : 1); ++half) {
+            auto [grid, dense_box] = source.build(options, half);
+            box = dense_box;
+            if (grid.left_out)
+                Log(Info, "nanovdbvolume: \"%s\": %llu voxels within threshold = %f of the "
+                          "background left out", settings.filename,
+                    (unsigned long long) grid.left_out, options.threshold);
+            if (half == 0) {
+                summary = memory(options.name, grid.bytes.data(), grid.bytes.size(), box, s,
+                                 facts, six);
+            } else {
+                second = std::make_unique<Sampler>();
+                memory(options.name, grid.bytes.data(), grid.bytes.size(), box, *second,
+                       second_facts, six);
+            }
+        }
+        return summary;
     }
 
 private:

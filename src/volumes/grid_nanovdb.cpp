@@ -408,23 +408,7 @@ public:
             if (!(options.threshold >= 0.f))
                 Throw("nanovdbvolume: \"%s\": threshold must be >= 0, got %f", m_filename,
                       options.threshold);
-            for (int half = 0; half < (memory->six_channels ? 2 : 1); ++half) {
-                auto [built, dense_box] = memory->build(options, half);
-                box = dense_box;
-                if (built.left_out)
-                    Log(Info, "nanovdbvolume: \"%s\": %llu voxels within threshold = %f of the "
-                              "background left out", m_filename,
-                        (unsigned long long) built.left_out, options.threshold);
-                const bool six = memory->six_channels;
-                if (half == 0) {
-                    summary = m_load.memory(options.name, built.bytes.data(),
-                                            built.bytes.size(), box, m_sampler, m_load.facts, six);
-                } else {
-                    m_second = std::make_unique<Sampler>();
-                    m_load.memory(options.name, built.bytes.data(), built.bytes.size(), box,
-                                  *m_second, m_load.second_facts, six);
-                }
-            }
+            summary = m_load.built(*memory, options, m_sampler, m_second, box);
         }
         m_channel_count = m_second ? 6
                           : m_load.facts.grid_type == kVec3f || m_sampler.index_channels == 3 ? 3
