@@ -6,7 +6,7 @@
 #   gpu-kit/python.tar.xz   mitsuba + drjit for the target Python (pip
 #                           wheels, unpacked; headers, stubs and unused
 #                           variant modules removed)
-#   gpu-kit/build.tar.xz    build/plugins/{nanovdbvolume,volpathlocal}.so, the test and tool
+#   gpu-kit/build.tar.xz    build/plugins/{nanovdbvolume,volpathlocal,emissiveheterogeneous}.so, the test and tool
 #                           binaries (doctest suites, grid generators,
 #                           vdb2nvdb), the shared libraries they need that a
 #                           stock Linux lacks (OpenVDB, TBB, Blosc, ...), and
@@ -104,8 +104,9 @@ cp "$py_tar" "$OUT/python.tar.xz"
 
 # ---- 2. The built plugin and binaries, with the shared libraries they need
 mkdir -p "$STAGE/build/plugins" "$STAGE/build/bin" "$STAGE/build/lib"
-cp "$BUILD/plugins/nanovdbvolume.so" "$BUILD/plugins/volpathlocal.so" "$STAGE/build/plugins/"
-bins=(test_translation test_hdda test_majorant_walk test_value_types test_io nvdb_make_test_grid
+cp "$BUILD/plugins/nanovdbvolume.so" "$BUILD/plugins/volpathlocal.so" \
+   "$BUILD/plugins/emissiveheterogeneous.so" "$STAGE/build/plugins/"
+bins=(test_translation test_sampler test_hdda test_majorant_walk test_value_types test_io nvdb_make_test_grid
       nvdb_make_stability_grid nvdb_big_grid vdb2nvdb)
 for b in "${bins[@]}"; do
   [ -x "$BUILD/bin/$b" ] && cp "$BUILD/bin/$b" "$STAGE/build/bin/"

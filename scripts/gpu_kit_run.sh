@@ -91,6 +91,7 @@ cd "$H/src"
 want() { case " $STEPS " in *" $1 "*) return 0 ;; *) return 1 ;; esac; }
 if want doctest; then
   step doctest_translation "$H/build/bin/test_translation"
+  step doctest_sampler "$H/build/bin/test_sampler"
   step doctest_io "$H/build/bin/test_io"
   step doctest_hdda "$H/build/bin/test_hdda"
   step doctest_majorant_walk "$H/build/bin/test_majorant_walk"
