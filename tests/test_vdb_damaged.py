@@ -15,7 +15,8 @@ deadline):
   1 GiB, and one that claims to be stored raw at 1 GiB (OpenVDB would read
   it over a 2 KB leaf: the crash stays in the reader).
 - test05: the fuzzers' reproducers (tests/data/vdb_crashers/), each a
-  clear error.
+  clear error, its reader within the memory bound of test01; the
+  fuzz_vdb_oom_* ones refused by the reader's memory budget.
 - test06: vdb2nvdb on the same files: an error, never an abort.
 - test07: a .vol whose header declares 10^12 voxels: refused from its header.
 """
@@ -200,6 +201,13 @@ def test05_fuzzer_reproducers(crasher, tmp_path):
     f.write_bytes(crasher.read_bytes())
     rows, _ = load_in_child([f], timeout=120)
     check_refused_or_loaded(rows)
+    # (the fuzz_vdb_oom_* files took OpenVDB over 2 GB in the fuzzer, which
+    # reads them in its own process without a budget: the plugin's reader
+    # refuses them within its budget, as test01 bounds it)
+    assert rows[0]["reader_peak_mb"] < 512, rows[0]
+    if crasher.name.startswith("fuzz_vdb_oom"):
+        assert "asks for more memory than a file of its size can need" in rows[0]["error"], \
+            rows[0]
 
 
 def test06_vdb2nvdb_reports_instead_of_aborting(fog, tmp_path):

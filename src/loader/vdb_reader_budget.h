@@ -45,15 +45,24 @@ inline uint64_t memory_budget(uint64_t file_bytes) {
     return kBaseBytes + kBytesPerFileByte * file_bytes;
 }
 
+/// A size for a message: MiB from 1 MiB up, KiB below (a block under 1 MiB
+/// that crosses the budget is not "0 MiB"), bytes below 1 KiB
+inline std::string budget_size(uint64_t bytes) {
+    if (bytes >= (uint64_t(1) << 20))
+        return std::to_string(bytes >> 20) + " MiB";
+    if (bytes >= 1024)
+        return std::to_string(bytes >> 10) + " KiB";
+    return std::to_string(bytes) + " bytes";
+}
+
 /// The error for a read that asked for more than `budget`: `label` (the
 /// quoted file name), the largest block refused, the budget and its knob
 inline std::string budget_refusal(const std::string &label, uint64_t budget,
                                   uint64_t refused_block) {
     return label + ": damaged: reading it asks for more memory than a file of its size can "
-           "need (" + (refused_block ? "a block of " + std::to_string(refused_block >> 20) +
-                                       " MiB; " : std::string()) +
-           "the budget is " + std::to_string(budget >> 20) +
-           " MiB, NVDB_VDB_READER_MEMORY_MB raises it)";
+           "need (" + (refused_block ? "a block of " + budget_size(refused_block) + "; "
+                                     : std::string()) +
+           "the budget is " + budget_size(budget) + ", NVDB_VDB_READER_MEMORY_MB raises it)";
 }
 
 /// Enforces `bytes` as the budget of live operator-new bytes from now on
