@@ -64,10 +64,17 @@ def test_pip_install_fresh_venv(venv, tmp_path):
     py = venv / "bin" / "python"
     # pip install . (the build requirements come from the system's site-packages)
     with build_dir_lock():
-        _run([py, "-m", "pip", "install", "--disable-pip-version-check", "--no-build-isolation",
-              "--no-deps", "--config-settings", f"build-dir={BUILD}",
-              "--config-settings", "cmake.define.NVDB_BUILD_TESTS=ON", "."],
-             cwd=ROOT, env=env)
+        try:
+            _run([py, "-m", "pip", "install", "--disable-pip-version-check",
+                  "--no-build-isolation", "--no-deps", "--config-settings", f"build-dir={BUILD}",
+                  "--config-settings", "cmake.define.NVDB_BUILD_TESTS=ON", "."],
+                 cwd=ROOT, env=env)
+        finally:
+            # The build directory's cache now names this venv's Python, which
+            # goes with the test: name the suite's own again (the in-tree
+            # check, tests/cmake_intree/check.sh, runs the cache's Python)
+            _run(["cmake", BUILD, f"-DPython_EXECUTABLE={sys.executable}"], cwd=ROOT,
+                 env=_clean_env(venv))
     site = _site_packages(venv)
     pkg = site / "nanovdb_mitsuba"
     installed = [pkg / "plugins" / "nanovdbvolume.so", pkg / "plugins" / "volpathlocal.so",
