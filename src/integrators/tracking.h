@@ -165,11 +165,10 @@ template <typename Float, typename Spectrum> struct Tracking {
      */
     static void next_collision(const TrackedMedium &k, const WalkRay &wr, Flight &flight) {
         flight.searching = flight.alive;
-        const Float scale = k.scale;
         dr::tie(flight) = dr::while_loop(
             dr::make_tuple(flight), [](const Flight &f) { return f.searching; },
-            [k, wr, scale](Flight &f) {
-                Float mu = scale * f.walk.majorant, end = f.walk.segment_end(),
+            [k, wr](Flight &f) {
+                Float mu = k.scale * f.walk.majorant, end = f.walk.segment_end(),
                       t = dr::maximum(f.t, f.walk.segment_begin()), depth = mu * (end - t);
                 Mask found = f.searching && (f.tau < depth), miss = f.searching && !found;
                 f.t = dr::select(found, t + f.tau / mu, f.t);
@@ -208,15 +207,14 @@ template <typename Float, typename Spectrum> struct Tracking {
             Sampler *sampler;
             DRJIT_STRUCT(Loop, flight, state, sampler)
         } ls = { begin_flight(k, wr, mint, maxt, sampler, active), state, sampler };
-        const Float scale = k.scale;
         dr::tie(ls) = dr::while_loop(
             dr::make_tuple(ls), [](const Loop &ls) { return ls.flight.alive; },
-            [k, wr, scale, loop, collide](Loop &ls) {
+            [k, wr, loop, collide](Loop &ls) {
                 next_collision(k, wr, ls.flight);
                 Mask hit = ls.flight.alive;
                 if (dr::none_or<false>(hit))
                     return; // (scalar: the walk ended)
-                Float mu = scale * ls.flight.walk.majorant;
+                Float mu = k.scale * ls.flight.walk.majorant;
                 Mask more = collide(ls.state, ls.flight.t, mu, ls.sampler, hit);
                 dr::masked(ls.flight.tau, hit && more) =
                     -dr::log(1.f - ls.sampler->next_1d(hit && more));

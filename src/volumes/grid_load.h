@@ -71,7 +71,7 @@ struct LoadSettings {
 
 /// A .vdb file's grid, converted at load (vdb_file()): for traverse() and to_string()
 struct VdbImport {
-    bool imported = false, fogged = false;
+    bool imported = false;
     uint32_t source_class = 0; ///< OpenVDB's GridClass of the grid in the file
     double convert_seconds = 0;
     double reader_seconds = 0, reader_peak_mb = 0; ///< the reader process's
@@ -104,7 +104,6 @@ template <typename Float, typename Spectrum> struct GridLoad {
         }
         vdb.imported = true;
         vdb.source_class = g.source_class;
-        vdb.fogged = g.fogged;
         fogged = g.fogged;
         vdb.convert_seconds = g.convert_seconds;
         vdb.reader_seconds = g.reader_seconds;

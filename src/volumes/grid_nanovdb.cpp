@@ -15,6 +15,7 @@
 
 #include "memory_source.h"
 #include "grid_load.h"
+#include "volume_properties.h"
 #include "index_updates.h"
 #include "placement.h"
 #include "sampler_setup.h"
@@ -267,10 +268,8 @@ and lists the supported ones.
         }
 */
 
-/// filter_type: what a lookup reads
-enum class Filter : uint32_t { Nearest, Trilinear, StochasticTrilinear, StochasticTricubic };
-constexpr const char *FILTER_NAMES[] = { "nearest", "trilinear", "stochastic_trilinear",
-                                         "stochastic_tricubic" };
+using nvdb::Filter;
+using nvdb::FILTER_NAMES;
 
 template <typename Float, typename Spectrum>
 class NanoVDBVolume final : public Volume<Float, Spectrum>,
@@ -285,131 +284,26 @@ public:
     using Array3f = dr::Array<Float, 3>;
 
     NanoVDBVolume(const Properties &props) : Base(props) {
-        // Where the values come from: a file, or values in memory (built
-        // into a grid here: memory_source.h, nanovdb_loader/build.h)
-        const bool grid_object = props.has_property("grid") &&
-                                 props.type("grid") == Properties::Type::Object;
-        const int sources = int(props.has_property("filename")) + int(grid_object) +
-                            int(props.has_property("data")) +
-                            int(props.has_property("values") || props.has_property("coords"));
-        if (sources != 1)
-            Throw("nanovdbvolume: give exactly one of \"filename\" (a .nvdb file), \"grid\" "
-                  "(a VolumeGrid), \"data\" (a dense tensor) or \"values\" with \"coords\" "
-                  "(voxels one by one); %d were given", sources);
+        // The properties (volume_properties.h); values from memory are read
+        // there (memory_source.h) and built into a grid here
+        // (nanovdb_loader/build.h)
         std::optional<MemorySource<Float, Spectrum>> memory;
-        bool vol_file = false; // a gridvolume file (.vol): dense, made sparse here
-        if (props.has_property("filename")) {
-            m_filename = file_resolver()->resolve(props.get<std::string_view>("filename")).string();
-            vol_file = is_vol_file(m_filename);
-            if (vol_file) {
-                if (props.has_property("grid"))
-                    Throw("nanovdbvolume: \"%s\": a .vol file holds one volume: no \"grid\" to "
-                          "choose", m_filename);
-                memory.emplace(m_filename);
-            }
-        } else {
-            memory.emplace(props, grid_object);
-            m_filename = memory->label;
-        }
-
-        std::string_view filter = props.get<std::string_view>("filter_type", "trilinear");
-        for (size_t f = 0; f < std::size(FILTER_NAMES); ++f)
-            if (filter == FILTER_NAMES[f])
-                m_filter = Filter(f);
-        if (filter != FILTER_NAMES[(size_t) m_filter])
-            Throw("nanovdbvolume: \"%s\": invalid filter_type \"%s\", must be one of: "
-                  "\"nearest\", \"trilinear\", \"stochastic_trilinear\" or "
-                  "\"stochastic_tricubic\"", m_filename, filter);
-
-        std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
-        if (invalid == "clamp")
-            m_load.settings.invalid_values = nanovdb_loader::InvalidValues::Clamp;
-        else if (invalid != "error")
-            Throw("nanovdbvolume: \"%s\": invalid value \"%s\" for invalid_values, must be "
-                  "one of: \"error\" or \"clamp\"", m_filename, invalid);
-
-        // Outside the box: the tree's own values (VDB semantics; the default
-        // for files and voxel lists) or the edge voxels (gridvolume's
-        // convention, and its default: the default for dense data)
-        const bool dense_source = grid_object || props.has_property("data") || vol_file;
-        std::string_view wrap = props.get<std::string_view>("wrap_mode",
-                                                             dense_source ? "clamp" : "tree");
-        if (wrap == "clamp")
-            m_clamp = true;
-        else if (wrap == "repeat" || wrap == "mirror")
-            Throw("nanovdbvolume: \"%s\": wrap_mode \"%s\" is not supported: a sparse grid has "
-                  "no period to repeat or mirror; use \"clamp\" (the edge voxels, gridvolume's "
-                  "default) or \"tree\" (the tree's own values)", m_filename, wrap);
-        else if (wrap != "tree")
-            Throw("nanovdbvolume: \"%s\": invalid wrap_mode \"%s\", must be one of: \"tree\" "
-                  "or \"clamp\"", m_filename, wrap);
-
-        m_use_grid_transform = props.get<bool>("use_grid_transform", false);
-        const bool use_grid_bbox = props.get<bool>("use_grid_bbox", false);
-        if (use_grid_bbox && m_use_grid_transform)
-            Throw("nanovdbvolume: \"%s\": use_grid_bbox and use_grid_transform both place the "
-                  "volume by the grid's own coordinates; set one of them", m_filename);
-        if (use_grid_bbox && (props.has_property("data") || props.has_property("values")))
-            Throw("nanovdbvolume: \"%s\": use_grid_bbox needs a bounding box, which a file or a "
-                  "VolumeGrid has and a tensor does not (as for gridvolume)", m_filename);
-        // gridvolume's hardware textures (CUDA): nothing to switch here, the
-        // tree is traversed on every backend
-        if (props.has_property("accel"))
-            Log(Debug, "nanovdbvolume: \"%s\": accel=%s has no effect (no texture units: the "
-                       "tree is traversed)", m_filename, props.get<bool>("accel"));
-        m_load.settings.raw = props.get<bool>("raw", false);
-        const bool count_lookups = props.get<bool>("count_lookups", false);
-        // Differentiable values: the grid becomes an index grid (its tree)
-        // and one Float array of its active values, exposed as "data"
-        m_load.settings.differentiable = props.get<bool>("differentiable", false);
-        nanovdb_loader::BlindSelection &blind = m_load.settings.blind;
-        blind.channel = std::string(props.get<std::string_view>("blind_channel", ""));
-        blind.component = (uint32_t) props.get<uint32_t>("blind_component", 0);
-        // level_set: what a file's level set becomes. The default keeps what
-        // each kind of file gave before: vdb2nvdb's fog for a .vdb, the
-        // stored distances for a .nvdb (vdb2nvdb fogs the level sets it
-        // writes unless --keep-level-sets: a .nvdb level set was kept so)
-        const bool vdb_file = !memory && nanovdb_loader::is_vdb_path(m_filename);
-        std::string_view level_set = props.get<std::string_view>("level_set",
-                                                                 vdb_file ? "fog" : "distance");
-        if (level_set == "fog")
-            m_load.settings.level_set_fog = true;
-        else if (level_set != "distance")
-            Throw("nanovdbvolume: \"%s\": invalid level_set \"%s\", must be one of: \"fog\" "
-                  "or \"distance\"", m_filename, level_set);
-        if (memory && props.has_property("level_set"))
-            Throw("nanovdbvolume: \"%s\": level_set applies to the level sets of .nvdb and "
-                  ".vdb files; this volume comes from %s, which holds none", m_filename,
-                  vol_file ? "a .vol file" : "memory");
-
-        // What the load takes from these properties (grid_load.h); a
-        // filter's reach: a tricubic stencil reaches 1.5 voxels, a ring of 2
-        m_load.settings.filename = m_filename;
-        m_load.settings.clamp = m_clamp;
-        m_load.settings.reach = m_filter == Filter::Nearest               ? 0
-                                : m_filter == Filter::StochasticTricubic ? 2
-                                                                         : 1;
+        const nvdb::VolumeProperties p = nvdb::read_volume_properties(props, memory);
+        m_filename = p.filename;
+        m_filter = p.filter;
+        m_clamp = p.clamp;
+        m_use_grid_transform = p.use_grid_transform;
+        m_load.settings = p.load;
 
         // The grid (a second one for 6 channels: channels 3 to 5)
         nanovdb_loader::GridSummary summary;
         std::optional<nanovdb_loader::IndexBox> box; // the volume's box, if not the active one
-        if (!memory) {
-            std::string selector(grid_object ? "" : props.get<std::string_view>("grid", ""));
+        if (!memory)
             summary = nanovdb_loader::is_vdb_path(m_filename)
-                          ? m_load.vdb_file(selector, m_sampler)
-                          : m_load.nvdb_file(selector, m_sampler, m_second);
-        } else {
-            nanovdb_loader::BuildOptions options;
-            options.background = props.get<ScalarFloat>("background", 0.f);
-            options.threshold = props.get<ScalarFloat>("threshold", 0.f);
-            if (!std::isfinite(options.background))
-                Throw("nanovdbvolume: \"%s\": background must be finite, got %f", m_filename,
-                      options.background);
-            if (!(options.threshold >= 0.f))
-                Throw("nanovdbvolume: \"%s\": threshold must be >= 0, got %f", m_filename,
-                      options.threshold);
-            summary = m_load.built(*memory, options, m_sampler, m_second, box);
-        }
+                          ? m_load.vdb_file(p.selector, m_sampler)
+                          : m_load.nvdb_file(p.selector, m_sampler, m_second);
+        else
+            summary = m_load.built(*memory, p.build, m_sampler, m_second, box);
         m_channel_count = m_second ? 6
                           : m_load.facts.grid_type == kVec3f || m_sampler.index_channels == 3 ? 3
                                                                                           : 1;
@@ -427,7 +321,7 @@ public:
         set_index_box(summary, box);
         if (m_second)
             m_second->set_box(m_index_min_box, m_resolution_box, kVec3f, m_clamp);
-        if (use_grid_bbox)
+        if (p.use_grid_bbox)
             place_by_grid_bbox(summary, memory ? memory->bbox_transform : std::nullopt);
         if (m_use_grid_transform)
             set_grid_transform(summary);
@@ -437,8 +331,8 @@ public:
         // than the values' own is kept (a looser majorant: slower, still
         // unbiased); a smaller one would bias every render, so it is refused
         // with a warning, and the values' own is kept.
-        if (props.has_property("max_value")) {
-            ScalarFloat given = props.get<ScalarFloat>("max_value");
+        if (p.max_value) {
+            ScalarFloat given = *p.max_value;
             if (given >= max()) {
                 m_load.index.max_value_given = given;
                 m_load.facts.max = given;
@@ -451,7 +345,7 @@ public:
                           "so max() stays %f", m_filename, given, max(), max());
             }
         }
-        if (count_lookups)
+        if (p.count_lookups)
             m_sampler.enable_counters();
         Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
             m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
@@ -614,7 +508,7 @@ public:
         put("vdb_imported", m_load.vdb.imported);
         if (m_load.vdb.imported) {
             put("vdb_source_class", m_load.vdb.source_class);
-            put("vdb_fogged", m_load.vdb.fogged);
+            put("vdb_fogged", m_load.fogged);
             put("vdb_convert_seconds", m_load.vdb.convert_seconds);
             // the reader process (nanovdb_loader/vdb_import.h): start to
             // reply, and its peak resident memory
@@ -648,7 +542,7 @@ public:
             << std::endl;
         if (m_load.vdb.imported)
             oss << "  converted = from .vdb at load (" << m_load.vdb.convert_seconds << " s)"
-                << (m_load.vdb.fogged ? ", a level set made a fog volume" : "") << "," << std::endl;
+                << (m_load.fogged ? ", a level set made a fog volume" : "") << "," << std::endl;
         oss
             << "  channels = " << m_channel_count << "," << std::endl
             << "  filter_type = " << FILTER_NAMES[(size_t) m_filter] << "," << std::endl
@@ -744,17 +638,6 @@ public:
 
 private:
     static constexpr uint32_t kVec3f = nanovdb_drjit::layout::GRID_TYPE_VEC3F;
-
-    /// Whether `path` starts as a gridvolume file does ("VOL", version 3)
-    static bool is_vol_file(const std::string &path) {
-        FILE *f = std::fopen(path.c_str(), "rb");
-        if (!f)
-            return false; // (the loader reports a missing file)
-        unsigned char magic[4] = { 0, 0, 0, 0 };
-        size_t n = std::fread(magic, 1, 4, f);
-        std::fclose(f);
-        return n == 4 && magic[0] == 'V' && magic[1] == 'O' && magic[2] == 'L' && magic[3] == 3;
-    }
 
     std::string channels_str() const {
         return m_channel_count == 1 ? "a single channel"
