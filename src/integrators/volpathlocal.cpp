@@ -156,6 +156,10 @@ public:
                   m_coarse_depth);
         // (an opaque variable: integrators of other depths share kernels)
         m_coarse_depth_var = dr::opaque<Float>(m_coarse_depth);
+        // The same for the depths (kernel parameters, where volpath's are
+        // literals): renders of other max_depth and rr_depth share kernels
+        m_max_depth_var = dr::opaque<UInt32>((uint32_t) m_max_depth);
+        m_rr_depth_var = dr::opaque<UInt32>((uint32_t) m_rr_depth);
         m_max_ratio = props.get<ScalarFloat>("max_majorant_ratio", 0.5f);
         if (!(m_max_ratio >= 0.f && m_max_ratio <= 1.f))
             Throw("volpathlocal: max_majorant_ratio must be in [0, 1], got %f", m_max_ratio);
@@ -312,11 +316,11 @@ public:
             // probability to avoid getting stuck (e.g. due to total internal reflection)
             active &= dr::any(unpolarized_spectrum(throughput) != 0.f);
             Float q = dr::minimum(dr::max(unpolarized_spectrum(throughput)) * dr::square(eta), .95f);
-            Mask perform_rr = (depth > (uint32_t) m_rr_depth);
+            Mask perform_rr = (depth > m_rr_depth_var); // volpathlocal: opaque depths
             active &= sampler->next_1d(active) < q || !perform_rr;
             dr::masked(throughput, perform_rr) *= dr::rcp(dr::detach(q));
 
-            active &= depth < (uint32_t) m_max_depth;
+            active &= depth < m_max_depth_var; // volpathlocal: opaque depths
             if (dr::none_or<false>(active))
                 return;
 
@@ -404,7 +408,7 @@ public:
             }
 
             // Dont estimate lighting if we exceeded number of bounces
-            active &= depth < (uint32_t) m_max_depth;
+            active &= depth < m_max_depth_var; // volpathlocal: opaque depths
             act_medium_scatter &= active;
 
             if (dr::any_or<true>(act_null_scatter)) {
@@ -502,7 +506,7 @@ public:
                 // --------------------- Emitter sampling ---------------------
                 BSDFContext ctx;
                 BSDFPtr bsdf  = si.bsdf(ray);
-                Mask active_e = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) && (depth + 1 < (uint32_t) m_max_depth);
+                Mask active_e = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) && (depth + 1 < m_max_depth_var); // volpathlocal: opaque depths
 
                 if (likely(dr::any_or<true>(active_e))) {
                     // volpathlocal: the shadow ray's loop-bound trips kept
@@ -809,6 +813,7 @@ private:
     // volpathlocal: the tracking's settings and state
     ScalarFloat m_coarse_depth;
     Float m_coarse_depth_var; ///< the same, as a kernel parameter
+    UInt32 m_max_depth_var, m_rr_depth_var; ///< max_depth and rr_depth, as kernel parameters
     ScalarFloat m_max_ratio;
     mutable std::vector<TrackedMedium> m_tracked;
     mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
@@ -816,7 +821,7 @@ private:
     LoopTrips<Float> m_trips; ///< the lanes each loop bound stopped (loop_bounds.h)
     uint32_t m_trip_total_host = 0, m_tracked_host = 0; ///< traverse()'s copies
 
-    MI_TRAVERSE_CB(Base, m_coarse_depth_var, m_trips.jit_counts)
+    MI_TRAVERSE_CB(Base, m_coarse_depth_var, m_max_depth_var, m_rr_depth_var, m_trips.jit_counts)
 };
 
 MI_EXPORT_PLUGIN(VolumetricPathLocalMajorants) // volpathlocal: its own name
