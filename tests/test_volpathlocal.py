@@ -379,6 +379,28 @@ def test04_shadow_rays_ratio_tracking_analytic(variants_rgb, tmp_path, hot):
         assert fractional.any() == bool(hot)
 
 
+def test04b_shadow_estimates_average_independent_estimates(variants_rgb, tmp_path):
+    # shadow_estimates=M (bench/variance_split.py's measurement): the shadow
+    # ray's weight is the mean of M independent ratio-tracking estimates
+    # W_1..W_M. test04's loose case (density 1, majorant 4): per sample
+    # X = B * mean(W), E[X] = T^2 for every M, and
+    # E[X^2] = T (E[W^2] / M + (M - 1) / M T^2). The variance per sample
+    # is read from the spread of 48^2 identical pixels (a relative standard
+    # error of 2.9 %; 15 % is 5 of them): M = 4 is 23 % below M = 1, so
+    # estimates that were not independent, or not averaged, fail it.
+    nvdb, _, _ = make_stab(tmp_path, "ratio", "--value", 1.0, "--set", 0, 0, 0, 4.0, dense=False)
+    vol = load_nvdb(nvdb, filter_type="nearest")
+    size, spp = 48, 128
+    t, w2 = np.exp(-1.0), ratio_tracking_second_moment(4.0, 1.0, 1.0)
+    for m in (1, 4):
+        img = transmittance_scene("volpathlocal", vol, size=size, spp=spp, view=(0.2, 0.9),
+                                  shadow=True, shadow_estimates=m)
+        var = t * (w2 / m + (m - 1) / m * t * t) - t ** 4
+        assert_mean_close(img, spp, t * t, np.sqrt(var), m)
+        measured = img.var(ddof=1) * spp
+        assert abs(measured / var - 1) < 0.15, (m, measured, var)
+
+
 # ---------------------------------------------------------------------------
 #  Scattering: volpathlocal vs volpath (z-test)
 # ---------------------------------------------------------------------------
@@ -606,7 +628,8 @@ def test15_fewer_lookups_than_volpath(variants_rgb, make_grid, name):
                                         ("coarse_optical_depth", float("nan")),
                                         ("max_majorant_ratio", -0.5),
                                         ("max_majorant_ratio", 1.5),
-                                        ("max_majorant_ratio", float("nan"))])
+                                        ("max_majorant_ratio", float("nan")),
+                                        ("shadow_estimates", 0)])
 def test16_bad_parameters(variant_scalar_rgb, name, value):
     # Checked in the constructor; the message names the parameter
     with pytest.raises(RuntimeError, match=name):

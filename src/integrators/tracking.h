@@ -317,25 +317,51 @@ template <typename Float, typename Spectrum> struct Tracking {
      * Ratio tracking along `ray` through tracked medium k up to tmax: the
      * transmittance estimate prod (mu - mu_t(t)) / mu over the tentative
      * collisions (stopping where it reaches 0), and the bounds that tripped.
+     * estimates > 1: the mean of that many independent estimates (a
+     * measurement of the shadow rays' share of the variance:
+     * volpathlocal's shadow_estimates)
      */
     static std::pair<UnpolarizedSpectrum, UInt32>
     ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
-                   const Float &coarse_depth, Sampler *sampler, Mask active) {
+                   const Float &coarse_depth, Sampler *sampler, Mask active,
+                   uint32_t estimates = 1) {
         auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
-        UnpolarizedSpectrum tr(1.f);
-        Flight f = sample_t_maj(
-            k, wr, mint, maxt, sampler, tr, RatioLoop, active,
-            [k, ray, mint](UnpolarizedSpectrum &tr_, const Float &t, const Float &mu,
-                           Sampler *sampler_, const Mask &hit) {
-                auto [sigma_s, sigma_n, sigma_t] =
-                    coefficients(k, interaction_at(k, ray, t, mint), sampler_, hit);
-                DRJIT_MARK_USED(sigma_s);
-                DRJIT_MARK_USED(sigma_n);
-                dr::masked(tr_, hit) *= (mu - sigma_t) / mu;
-                return !dr::all(tr_ == 0.f);
+        auto one = [&](Sampler *sampler_, const Mask &active_) {
+            UnpolarizedSpectrum tr(1.f);
+            Flight f = sample_t_maj(
+                k, wr, mint, maxt, sampler_, tr, RatioLoop, active_,
+                [k, ray, mint](UnpolarizedSpectrum &tr_, const Float &t, const Float &mu,
+                               Sampler *s, const Mask &hit) {
+                    auto [sigma_s, sigma_n, sigma_t] =
+                        coefficients(k, interaction_at(k, ray, t, mint), s, hit);
+                    DRJIT_MARK_USED(sigma_s);
+                    DRJIT_MARK_USED(sigma_n);
+                    dr::masked(tr_, hit) *= (mu - sigma_t) / mu;
+                    return !dr::all(tr_ == 0.f);
+                },
+                "volpathlocal: ratio tracking");
+            return std::make_pair(tr, f.tripped);
+        };
+        if (estimates == 1)
+            return one(sampler, active);
+        struct Mean {
+            UnpolarizedSpectrum sum;
+            UInt32 tripped, i;
+            Sampler *sampler;
+            DRJIT_STRUCT(Mean, sum, tripped, i, sampler)
+        } m = { dr::zeros<UnpolarizedSpectrum>(), UInt32(0), UInt32(0), sampler };
+        const uint32_t n = estimates;
+        dr::tie(m) = dr::while_loop(
+            dr::make_tuple(m), [n, active](const Mean &m) { return active && m.i < n; },
+            [one, n, active](Mean &m) {
+                Mask go = active && m.i < n;
+                auto [tr, tripped] = one(m.sampler, go);
+                dr::masked(m.sum, go) += tr;
+                dr::masked(m.tripped, go) |= tripped;
+                m.i += 1;
             },
-            "volpathlocal: ratio tracking");
-        return { tr, f.tripped };
+            "volpathlocal: shadow estimates");
+        return { m.sum / float(n), m.tripped };
     }
 };
 

@@ -71,6 +71,14 @@ Volumetric path tracer with local majorants (:monosp:`volpathlocal`)
      few null collisions there cost less than the steps of the walk.
      ``0`` walks every leaf. (Default: 2)
 
+ * - shadow_estimates
+   - |int|
+   - How many independent ratio-tracking estimates of a tracked medium's
+     transmittance each shadow ray averages. Above 1 it costs that many
+     walks and leaves the rest of the path as it is: a measurement of how
+     much of an image's variance the shadow rays carry
+     (``bench/variance_split.py``), not a setting for renders. (Default: 1)
+
 A drop-in replacement for :ref:`volpath <integrator-volpath>` that renders
 ``heterogeneous`` media whose ``sigma_t`` is a ``nanovdbvolume`` several
 times faster. The stock medium samples free-flight distances against one
@@ -160,6 +168,10 @@ public:
         // literals): renders of other max_depth and rr_depth share kernels
         m_max_depth_var = dr::opaque<UInt32>((uint32_t) m_max_depth);
         m_rr_depth_var = dr::opaque<UInt32>((uint32_t) m_rr_depth);
+        int shadow = props.get<int>("shadow_estimates", 1);
+        if (shadow < 1)
+            Throw("volpathlocal: shadow_estimates must be >= 1, got %d", shadow);
+        m_shadow_estimates = (uint32_t) shadow;
         m_max_ratio = props.get<ScalarFloat>("max_majorant_ratio", 0.5f);
         if (!(m_max_ratio >= 0.f && m_max_ratio <= 1.f))
             Throw("volpathlocal: max_majorant_ratio must be in [0, 1], got %f", m_max_ratio);
@@ -675,7 +687,7 @@ public:
                         continue;
                     auto [tr, tripped_k] = Tracker::ratio_tracking(
                         k, ray, dr::minimum(si.t, remaining_dist), m_coarse_depth_var, sampler,
-                        in_k);
+                        in_k, m_shadow_estimates);
                     dr::masked(transmittance, in_k) *= tr;
                     dr::masked(ls.tripped, in_k) |= tripped_k;
                 }
@@ -815,6 +827,7 @@ private:
     Float m_coarse_depth_var; ///< the same, as a kernel parameter
     UInt32 m_max_depth_var, m_rr_depth_var; ///< max_depth and rr_depth, as kernel parameters
     ScalarFloat m_max_ratio;
+    uint32_t m_shadow_estimates; ///< ratio-tracking estimates a shadow ray averages
     mutable std::vector<TrackedMedium> m_tracked;
     mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
     mutable std::mutex m_prepare_mutex;
