@@ -27,6 +27,8 @@ stage fuzzbld "fuzz build (clang, libFuzzer + ASan + UBSan, build-fuzz/)"
 # scripts/fuzz_campaign.sh), small generated grids and ../shared/data.
 CC=clang-14 CXX=clang++-14 cmake -S . -B build-fuzz -G Ninja -DNVDB_BUILD_FUZZ=ON \
   -DNVDB_BUILD_TOOLS=OFF -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -gline-tables-only -DNDEBUG" \
+  -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O2 -gline-tables-only -DNDEBUG" \
   -DPython_EXECUTABLE="$(command -v "${PYTHON:-python3}")" >/dev/null
 cmake --build build-fuzz --target fuzz_nvdb fuzz_vdb
 mkdir -p build-fuzz/seeds build-fuzz/corpus build-fuzz/seeds-vdb build-fuzz/corpus-vdb
