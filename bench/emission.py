@@ -79,6 +79,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
+import harness  # noqa: E402
 
 SHARED_USD = os.path.join(ROOT, "..", "shared", "data", "usd_density_heat_fog.vdb")
 CASES = ["fireball", "usd_heat"]
@@ -284,10 +285,40 @@ def render_turntable(mi, dr, scene, spp, seed, cpu=None):
     return t, np.stack([np.asarray(im, dtype=np.float32)[..., :3] for im in imgs])
 
 
-def child(spec_path):
-    spec = json.load(open(spec_path))
+_COUNTER = []  # (the appender, kept alive)
+
+
+def count_warnings(mi):
+    """Mitsuba's log in this process through one appender: the WARNINGS
+    counted, not printed (scalar variants warn for every negative sample),
+    every other line printed. Returns the counts, live."""
+    counts = {k: 0 for k in WARNINGS}
+
+    class Counter(mi.Appender):
+        def append(self, level, text):
+            hit = [k for k, t in WARNINGS.items() if t in text]
+            for k in hit:
+                counts[k] += 1
+            if not hit:
+                print(text, flush=True)
+
+        def log_progress(self, progress, name, formatted, eta, ptr=None):
+            pass
+
+    logger = mi.Thread.thread().logger()
+    logger.clear_appenders()
+    _COUNTER.append(Counter())
+    logger.add_appender(_COUNTER[-1])
+    return counts
+
+
+def child(spec):
+    """One variant's measurements, in a process of its own (bench/harness.py;
+    the parent's run_child): returns them, and writes the images to
+    spec["out_npz"]"""
     from child_setup import mitsuba_for
     dr, mi = mitsuba_for(spec["variant"], spec["build"])
+    warnings = count_warnings(mi)
     try:
         from nanovdb_mitsuba import volume_facts
     except ImportError:
@@ -374,49 +405,30 @@ def child(spec_path):
             for c in spec["configs"])
             + (f", on/off {med['on'] / med['off']:.3f}" if "on" in med and "off" in med else ""))
     out["loadavg_end"] = os.getloadavg()
+    out["warnings"] = dict(warnings)
     np.savez(spec["out_npz"], **images)
-    json.dump(out, open(spec["out_json"], "w"), indent=1)
+    return out
 
 
 def run_child(spec, work, tag):
-    spec = dict(spec, out_json=os.path.join(work, tag + ".json"),
-                out_npz=os.path.join(work, tag + ".npz"))
-    path = os.path.join(work, tag + ".spec.json")
-    with open(path, "w") as f:
-        json.dump(spec, f)
+    """One variant's child (child()): its measurements and images"""
+    spec = dict(spec, out_npz=os.path.join(work, tag + ".npz"))
     # An empty Dr.Jit kernel cache (a HOME of its own, as bench/run.py's
     # workers): the first turntable's time includes the compilation
     home = tempfile.mkdtemp(prefix="jit_home_", dir=work)
     t0 = time.perf_counter()
     try:
-        r = subprocess.run([sys.executable, os.path.abspath(__file__), "--child", path],
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                           env=dict(os.environ, HOME=home))
+        out = harness.run_child("emission:child", spec, home=home, echo=True)
     finally:
         shutil.rmtree(home, ignore_errors=True)
-    # Mitsuba's warnings, counted rather than printed one by one (scalar
-    # variants warn for every negative sample: see WARNINGS)
-    counts = {k: 0 for k in WARNINGS}
-    for line in r.stdout.splitlines():
-        hit = [k for k, text in WARNINGS.items() if text in line]
-        for k in hit:
-            counts[k] += 1
-        if not hit and line.strip() and line.strip() != "\x1b[0m":
-            log(line)
-    if r.returncode != 0:
-        raise RuntimeError(f"{tag}: the child process failed ({r.returncode})")
-    out = json.load(open(spec["out_json"]))
     out["wall_s"] = time.perf_counter() - t0
-    out["warnings"] = counts
+    counts = out["warnings"]
     if any(counts.values()):
         log(f"    {tag}: warnings " + ", ".join(f"{k} x{v}" for k, v in counts.items() if v))
     with np.load(spec["out_npz"]) as z:
         imgs = {k: z[k] for k in z.files}
     return out, imgs
 
-
-# ---------------------------------------------------------------------------
-# The parent: cases, references, measurements, report
 
 def file_key(paths):
     h = hashlib.sha1()
@@ -467,7 +479,6 @@ def references(a, case_list, work):
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--quick", action="store_true",
                     help="harness check: 64^3 fireball, 24^2 images, few spp, "
                     "out /tmp/emission_quick/")
@@ -499,8 +510,6 @@ def main():
     ap.add_argument("--report-only", action="store_true",
                     help="rewrite the report (.md, .png) from its .json, without measuring")
     a = ap.parse_args()
-    if a.child:
-        return child(a.child)
     if a.report_only:
         return report_only(a)
     if a.quick:

@@ -12,8 +12,9 @@ Adam on the values) and takes two steps: render, loss against a constant
 image, backward, Adam step, params.update(). It prints one JSON line: the
 values optimized, the process's peak RSS (ru_maxrss: loading and the steps
 together, what the machine must hold) and its RSS after loading, and the
-time of the second step. --sweep runs each volume in a child process (one
-at a time; a child killed or out of memory is reported, not fatal) and
+time of the second step. --sweep runs each volume in a child process
+(bench/harness.py; one at a time; a child killed or out of memory is
+reported, not fatal) and
 writes step_memory.json and step_memory.md to --out: bytes per value of
 the peak, and from the slope over the volumes of each plugin, the largest
 volume whose peak fits in --memory-gb. A child whose RSS passes --stop-gb
@@ -25,12 +26,12 @@ import argparse
 import json
 import os
 import resource
-import subprocess
 import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+import harness  # noqa: E402
 
 
 def rss_now():
@@ -42,18 +43,21 @@ def peak_rss():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def one(a):
+def measure(spec):
+    """One run (in a child of its own: bench/harness.py): spec "volume",
+    "variant", "build"; returns the row"""
     from child_setup import mitsuba_for
-    dr, mi = mitsuba_for(a.variant, a.build)
+    dr, mi = mitsuba_for(spec["variant"], spec["build"])
     from scene import turntable_scene
     import numpy as np
 
     rss0 = rss_now()
     t0 = time.perf_counter()
-    if a.volume.endswith(".vol"):
-        volume = mi.load_dict({"type": "gridvolume", "filename": a.volume})
+    path = spec["volume"]
+    if path.endswith(".vol"):
+        volume = mi.load_dict({"type": "gridvolume", "filename": path})
     else:
-        volume = mi.load_dict({"type": "nanovdbvolume", "filename": a.volume,
+        volume = mi.load_dict({"type": "nanovdbvolume", "filename": path,
                                "differentiable": True})
     desc = turntable_scene(volume, 32, 4, "prbvolpath")
     desc["integrator"]["max_depth"] = 4
@@ -80,45 +84,29 @@ def one(a):
         params.update(optimizer)
         dr.eval()
         step_s = time.perf_counter() - t
-    print(json.dumps(dict(volume=os.path.abspath(a.volume),
-                          plugin="gridvolume" if a.volume.endswith(".vol") else "nanovdbvolume",
-                          values=int(values), file_bytes=os.path.getsize(a.volume),
-                          rss_start=rss0, rss_loaded=rss_loaded, peak_rss=peak_rss(),
-                          load_s=load_s, step_s=step_s)), flush=True)
+    return dict(volume=os.path.abspath(path),
+                plugin="gridvolume" if path.endswith(".vol") else "nanovdbvolume",
+                values=int(values), file_bytes=os.path.getsize(path),
+                rss_start=rss0, rss_loaded=rss_loaded, peak_rss=peak_rss(),
+                load_s=load_s, step_s=step_s)
 
 
 def sweep(a):
     rows = []
     for path in a.sweep:
-        cmd = [sys.executable, os.path.abspath(__file__), "--volume", path, "--variant", a.variant]
-        if a.build:
-            cmd += ["--build", a.build]
-        print("running", " ".join(cmd), flush=True)
+        print("measuring", path, flush=True)
         t = time.perf_counter()
-        # A watchdog: the child is stopped once its RSS passes --stop-gb (the
-        # machine's other processes keep their memory; no OOM killer)
-        child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        stopped = False
-        while child.poll() is None:
-            try:
-                with open(f"/proc/{child.pid}/statm") as f:
-                    rss = int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-            except OSError:
-                rss = 0
-            if rss > a.stop_gb * 1e9:
-                child.kill()
-                stopped = True
-            time.sleep(0.05)
-        out, err = child.communicate()
-        line = [l for l in out.splitlines() if l.startswith("{")]
-        if child.returncode != 0 or not line:
-            rows.append(dict(volume=os.path.abspath(path), failed=True, returncode=child.returncode,
-                             stopped_at_gb=a.stop_gb if stopped else None,
-                             stderr=err[-2000:], wall_s=time.perf_counter() - t))
-            print(f"  failed (exit {child.returncode}" +
-                  (f", stopped at {a.stop_gb:g} GB of RSS)" if stopped else ")"), flush=True)
+        try:
+            row = harness.run_child("step_memory:measure", dict(
+                volume=os.path.abspath(path), variant=a.variant, build=a.build),
+                stop_rss_gb=a.stop_gb)
+        except harness.ChildFailed as e:
+            rows.append(dict(volume=os.path.abspath(path), failed=True, returncode=e.returncode,
+                             stopped_at_gb=a.stop_gb if e.stopped else None,
+                             stderr=e.stderr, wall_s=time.perf_counter() - t))
+            print(f"  failed (exit {e.returncode}" +
+                  (f", stopped at {a.stop_gb:g} GB of RSS)" if e.stopped else ")"), flush=True)
             continue
-        row = json.loads(line[-1])
         row["wall_s"] = time.perf_counter() - t
         rows.append(row)
         print(f"  {row['plugin']}: {row['values']:,} values, peak RSS {row['peak_rss'] / 1e9:.2f} GB "
@@ -178,8 +166,8 @@ def main():
     a = ap.parse_args()
     if a.sweep:
         sweep(a)
-    elif a.volume:
-        one(a)
+    elif a.volume:  # (in this process)
+        print(json.dumps(measure(dict(volume=a.volume, variant=a.variant, build=a.build))))
     else:
         ap.error("give --volume or --sweep")
 

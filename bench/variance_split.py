@@ -4,10 +4,11 @@ flights, phase and light sampling).
 
     python3 bench/variance_split.py [FILE.vdb|.nvdb ...] [--variant llvm_ad_rgb]
         [--filter stochastic_trilinear] [--res 128] [--spp 4] [--renders 24]
-        [--estimates 1 16] [--build build] [--out bench/results/variance_split.md]
+        [--estimates 1 16] [--max-depth 64] [--build build]
+        [--out bench/results/variance_split.md]
 
 The scene is nanovdb-render's for the file (nanovdb_mitsuba.scene.framed_scene:
-its camera, sky and sun, albedo 0.9, max_depth 64, the default density
+its camera, sky and sun, albedo 0.9, max_depth 64 or --max-depth, the default density
 scale). Per volpathlocal shadow_estimates M (each shadow ray averages M
 independent ratio-tracking estimates of each tracked medium's
 transmittance, the rest of the path unchanged), --renders independent
@@ -45,6 +46,7 @@ def measure(spec):
         desc, info = framed_scene(mi, spec["file"], res=spec["res"], spp=spec["spp"],
                                   filter_type=spec["filter"])
         desc["integrator"]["shadow_estimates"] = m
+        desc["integrator"]["max_depth"] = spec["max_depth"]
         desc["sensor"]["film"]["rfilter"] = {"type": "box"}  # (pixels independent)
         scene = mi.load_dict(desc)
         mi.render(scene, seed=10_000)  # (the kernel's compile, not timed)
@@ -87,6 +89,9 @@ def main(argv=None):
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--renders", type=int, default=24)
     ap.add_argument("--estimates", type=int, nargs="+", default=[1, 16])
+    ap.add_argument("--max-depth", type=int, default=64,
+                    help="the integrator's max_depth (1: what the camera ray sees through "
+                         "the medium alone; 2: and single scattering)")
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
@@ -97,7 +102,7 @@ def main(argv=None):
     for f in args.files:
         spec = dict(file=os.path.abspath(f), variant=args.variant, filter=args.filter,
                     res=args.res, spp=args.spp, renders=args.renders,
-                    estimates=args.estimates, build=args.build)
+                    estimates=args.estimates, build=args.build, max_depth=args.max_depth)
         rows = harness.run_child("variance_split:measure", spec)["rows"]
         name = os.path.basename(f)
         for r in rows:
