@@ -977,8 +977,9 @@ TEST_CASE_TEMPLATE("stochastic filters: one voxel in reach, whose mean over the 
                             value.push_back(l.sampler.nearest(v, true));
                         }
                     } else {
-                        V3f rel(dr::full<Float>(p[0], DRAWS), dr::full<Float>(p[1], DRAWS),
-                                dr::full<Float>(p[2], DRAWS)),
+                        // (opaque: the point is no literal, so all points share a kernel)
+                        V3f rel(dr::opaque<Float>(p[0], DRAWS), dr::opaque<Float>(p[1], DRAWS),
+                                dr::opaque<Float>(p[2], DRAWS)),
                             uu(dr::load<Float>(u[0].data(), DRAWS), dr::load<Float>(u[1].data(), DRAWS),
                                dr::load<Float>(u[2].data(), DRAWS));
                         const dr::Array<Int32, 3> v = l.sampler.stochastic_voxel(rel, uu, tricubic);
