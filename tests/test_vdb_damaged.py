@@ -19,6 +19,10 @@ deadline):
   fuzz_vdb_oom_* ones refused by the reader's memory budget.
 - test06: vdb2nvdb on the same files: an error, never an abort.
 - test07: a .vol whose header declares 10^12 voxels: refused from its header.
+- test10: lengths in a .vdb's header, grid descriptor and metadata that
+  exceed the file (a grid name of 2 GB, a metadata value of 2 GB) and a
+  damaged UUID: refused from the lengths, before OpenVDB allocates them,
+  with what is damaged, through the plugin and vdb2nvdb alike.
 """
 
 import json
@@ -293,3 +297,49 @@ def test09_listing_damaged_files(fog, tmp_path):
             listed += 1
     assert refused >= 2  # (the truncated and the garbage file at least)
     print(f"{len(cases)} damaged files: {listed} listed (metadata intact), {refused} refused")
+
+
+def damaged_lengths(fog):
+    """{name: (bytes, what the error must say)}: the length fields of the
+    generated fog's header, descriptor and metadata made to exceed the file"""
+    data = bytes(fog.read_bytes())
+    cases = {}
+    # The grid descriptor's unique name, "density" (uint32 length 7): the
+    # first occurrence comes before every grid's data
+    i = data.index(struct.pack("<I", 7) + b"density")
+    d = bytearray(data)
+    struct.pack_into("<I", d, i, 2**31 - 1)
+    cases["name_length.vdb"] = (bytes(d), "the descriptor of grid 0: its grid name needs "
+                                          "2147483647 bytes")
+    # The grid's "class" metadata entry: name, type name "string", then
+    # the value's uint32 size
+    i = data.index(struct.pack("<I", 5) + b"class" + struct.pack("<I", 6) + b"string")
+    d = bytearray(data)
+    struct.pack_into("<I", d, i + 4 + 5 + 4 + 6, 2**31 - 1)
+    cases["meta_value.vdb"] = (bytes(d), "grid \"density\"'s metadata: its metadata value "
+                                         "needs 2147483647 bytes")
+    # The header's UUID (36 ASCII characters after the 21 bytes of magic,
+    # versions and the offsets flag), its first character made non-hex
+    d = bytearray(data)
+    assert chr(d[21]) in "0123456789abcdef", d[:60]
+    d[21] = ord("z")
+    cases["uuid.vdb"] = (bytes(d), "its header cannot be read")
+    return cases
+
+
+def test10_lengths_past_the_end(fog, tmp_path):
+    cases = damaged_lengths(fog)
+    paths = []
+    for name, (content, _) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        paths.append(tmp_path / name)
+    rows, _ = load_in_child(paths, timeout=120)
+    for path, row in zip(paths, rows):
+        said = cases[path.name][1]
+        assert not row["ok"] and f"{path.name}\": damaged: " in row["error"], row
+        assert said in row["error"], row
+        # refused from the length: no allocation of it, no time
+        assert row["seconds"] < 5 and row["reader_peak_mb"] < 128, row
+        r = subprocess.run([str(VDB2NVDB), str(path), str(tmp_path / "o.nvdb")],
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 1 and said in r.stderr and path.name in r.stderr, r.stderr

@@ -50,6 +50,90 @@ bool convertible(const openvdb::GridBase &g) {
 }
 
 /**
+ * The length-prefixed fields of a .vdb header, checked against the bytes
+ * left before OpenVDB reads them. OpenVDB's readString and Metadata::read
+ * allocate and zero-fill what a length says: a damaged length of 4e9
+ * allocates up to the reader's budget before the read fails, in a second or
+ * so, and the message is OpenVDB's (or the budget's). Only lengths and
+ * counts are read here, every field is skipped, and the stream is put back
+ * where it was; OpenVDB then reads the same bytes. Fields (OpenVDB 10,
+ * io/io.h, Metadata.h, MetaMap.cc, GridDescriptor.cc):
+ *   string     uint32 length, then its bytes
+ *   metadata   uint32 count, then per entry: name (string), type name
+ *              (string), value (uint32 size, then its bytes)
+ *   descriptor unique name, grid type, (file version >= 216) instance
+ *              parent: three strings; then three int64 offsets
+ * A valid file's fields always fit, so a refusal here is damage.
+ */
+class LengthCheck {
+public:
+    /// `end`: the byte the fields must end by; `what`: the error's subject
+    LengthCheck(std::istream &is, int64_t end, const std::string &label, std::string what)
+        : m_is(is), m_start(is.tellg()), m_end(end), m_label(label), m_what(std::move(what)) {}
+    ~LengthCheck() {
+        m_is.clear();
+        m_is.seekg(m_start);
+    }
+    LengthCheck(const LengthCheck &) = delete;
+    LengthCheck &operator=(const LengthCheck &) = delete;
+
+    /// A length-prefixed field: a string, or a metadata value
+    void field(const char *name) { skip(length(name), name); }
+
+    void metadata() {
+        const uint64_t count = length("metadata count");
+        // each entry takes at least its three 4-byte lengths
+        if (count * 12 > left())
+            fail("metadata count", count * 12);
+        for (uint64_t i = 0; i < count; ++i) {
+            field("metadata name");
+            field("metadata type name");
+            field("metadata value");
+        }
+    }
+
+    void descriptor(uint32_t file_version) {
+        field("grid name");
+        field("grid type");
+        if (file_version >= openvdb::OPENVDB_FILE_VERSION_GRID_INSTANCING)
+            field("instance parent name");
+        skip(24, "grid offsets");
+    }
+
+private:
+    uint64_t left() const {
+        const int64_t pos = m_is.tellg();
+        return pos < 0 || pos > m_end ? 0 : uint64_t(m_end - pos);
+    }
+
+    uint64_t length(const char *name) {
+        uint32_t n = 0;
+        m_is.read(reinterpret_cast<char *>(&n), 4);
+        if (!m_is)
+            fail(name, 4);
+        return n;
+    }
+
+    void skip(uint64_t n, const char *name) {
+        if (n > left())
+            fail(name, n);
+        m_is.seekg(std::streamoff(n), std::ios::cur);
+    }
+
+    [[noreturn]] void fail(const char *name, uint64_t need) const {
+        throw Error(m_label + ": damaged: " + m_what + ": its " + name + " needs " +
+                    std::to_string(need) + " bytes, and " + std::to_string(left()) +
+                    " are left" + (m_what.rfind("grid", 0) == 0 ? " in the grid" : " in the file"));
+    }
+
+    std::istream &m_is;
+    std::streampos m_start;
+    int64_t m_end;
+    const std::string &m_label;
+    std::string m_what;
+};
+
+/**
  * A .vdb file read as openvdb::io::File reads one grid (the header, the
  * grid descriptors, then one grid by its offsets), with the checks File
  * leaves out: every descriptor's offsets lie inside the file, and the grid's
@@ -80,7 +164,13 @@ public:
         setFormatVersion(m_is);
         setLibraryVersion(m_is);
         setDataCompression(m_is);
+        // (readHeader parses the UUID with operator>>: a damaged one fails
+        // the stream instead of throwing)
+        if (!m_is)
+            throw Error(label + ": damaged: its header cannot be read (a corrupt version, "
+                                "flag or UUID field)");
         openvdb::MetaMap file_meta;
+        LengthCheck(m_is, m_size, label, "the file's metadata").metadata();
         file_meta.readMeta(m_is);
         if (!inputHasGridOffsets())
             throw NoOffsets{};
@@ -89,6 +179,8 @@ public:
             throw Error(label + ": cannot read as an OpenVDB file: bad grid count");
         for (int32_t i = 0; i < count; ++i) {
             Grid g;
+            LengthCheck(m_is, m_size, label, "the descriptor of grid " + std::to_string(i))
+                .descriptor(openvdb::io::getFormatVersion(m_is));
             g.grid = g.descriptor.read(m_is);
             const openvdb::io::GridDescriptor &d = g.descriptor;
             if (!m_is || !(0 < d.getGridPos() && d.getGridPos() <= d.getBlockPos() &&
@@ -102,6 +194,8 @@ public:
             // Its metadata (name, class), as File::readAllGridMetadata
             d.seekToGrid(m_is);
             readGridCompression(m_is);
+            LengthCheck(m_is, d.getEndPos(), label, "grid \"" + d.gridName() + "\"'s metadata")
+                .metadata();
             g.grid->readMeta(m_is);
             g.grid->setName(d.gridName());
             if (!m_is)

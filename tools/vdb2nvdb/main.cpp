@@ -157,6 +157,27 @@ openvdb::Coord parse_coord(const std::string &s) {
     return openvdb::Coord(v[0], v[1], v[2]);
 }
 
+/// fn(), whose errors all name the input file: OpenVDB's and NanoVDB's own
+/// messages from inside a conversion (a damaged transform: "Inversion of
+/// singular 4x4 matrix") do not, and a user with many files needs the one
+/// that failed
+template <typename Fn> int naming_input(const std::string &in, Fn &&fn) {
+    const std::string name = dq(in);
+    try {
+        return fn();
+    } catch (const Error &e) {
+        if (std::string(e.what()).find(name) != std::string::npos)
+            throw;
+        throw Error(name + ": " + e.what(), e.code);
+    } catch (const std::bad_alloc &) {
+        throw;
+    } catch (const std::exception &e) {
+        if (std::string(e.what()).find(name) != std::string::npos)
+            throw;
+        throw Error(name + ": " + e.what());
+    }
+}
+
 int run(int argc, char **argv) {
     std::vector<std::string> args(argv + 1, argv + argc);
     Options opts;
@@ -262,14 +283,16 @@ int run(int argc, char **argv) {
     if (list) {
         if (positional.size() != 1)
             usage_error("--list needs exactly one file, IN.vdb");
-        return list_file(positional[0]);
+        return naming_input(positional[0], [&] { return list_file(positional[0]); });
     }
     if (positional.size() != 2)
         usage_error(positional.size() < 2 ? "missing IN.vdb and/or OUT.nvdb"
                                           : "too many file names");
     if (verify_only_mode)
-        return verify_only(positional[0], positional[1], opts);
-    return convert_file(positional[0], positional[1], opts);
+        return naming_input(positional[0],
+                            [&] { return verify_only(positional[0], positional[1], opts); });
+    return naming_input(positional[0],
+                        [&] { return convert_file(positional[0], positional[1], opts); });
 }
 
 int work(int argc, char **argv) {
