@@ -103,7 +103,11 @@ variants.
 The code is Mitsuba 3.9.1's ``volpath`` (``src/integrators/volpath.cpp``,
 BSD-3-Clause), its structure, names and comments, with each difference
 marked ``// volpathlocal:``; the tracking itself is in
-``src/integrators/tracking.h``. A medium is tracked when its ``sigma_t``
+``src/integrators/tracking.h``. One difference is one of order: as in
+Mitsuba's ``prbvolpath``, a medium vertex and a surface vertex sample their
+emitter in one call, after the surface interactions, so that a compiled
+kernel holds one shadow ray and not two (the same samples, so the same
+images, bit for bit, on Mitsuba's medium test scenes). A medium is tracked when its ``sigma_t``
 offers local majorants (``nanovdb_mitsuba/local_majorants.h``), it exposes
 a ``scale``, and its own global majorant is ``scale * max()`` (what
 ``heterogeneous`` does).
@@ -152,7 +156,8 @@ public:
     MI_IMPORT_BASE(MonteCarloIntegrator, m_max_depth, m_rr_depth, m_hide_emitters)
     // volpathlocal: Sensor and Volume, the tracker's types, the two properties
     MI_IMPORT_TYPES(Scene, Sampler, Sensor, Emitter, EmitterPtr, BSDF, BSDFPtr,
-                    Medium, MediumPtr, PhaseFunctionContext, Volume)
+                    Medium, MediumPtr, PhaseFunction, PhaseFunctionPtr,
+                    PhaseFunctionContext, Volume)
     using Tracker = Tracking<Float, Spectrum>;
     using TrackedMedium = typename Tracker::TrackedMedium;
     using Trips = LoopTrips<Float>;
@@ -428,6 +433,15 @@ public:
                 dr::masked(si.t, act_null_scatter) = si.t - mei.t;
             }
 
+            // volpathlocal: the phase function and the lanes that sample an
+            // emitter from their medium vertex, kept for the emitter sampling
+            // and phase sampling below the surface interactions: one
+            // sample_emitter call serves medium and surface vertices alike
+            // (the order of Mitsuba's prbvolpath), so that a kernel traces
+            // one shadow ray, and one walk of each tracked medium for it
+            PhaseFunctionContext phase_ctx(sampler);
+            PhaseFunctionPtr phase = nullptr;
+            Mask active_e_medium = false;
             if (dr::any_or<true>(act_medium_scatter)) {
                 if (dr::any_or<true>(is_spectral))
                     dr::masked(throughput, is_spectral && act_medium_scatter) *=
@@ -435,8 +449,7 @@ public:
                 if (dr::any_or<true>(not_spectral))
                     dr::masked(throughput, not_spectral && act_medium_scatter) *= mei.sigma_s / mei.sigma_t;
 
-                PhaseFunctionContext phase_ctx(sampler);
-                auto phase = mei.medium->phase_function();
+                phase = mei.medium->phase_function(); // volpathlocal: (declared above)
 
                 // --------------------- Emitter sampling ---------------------
                 Mask sample_emitters = mei.medium->use_emitter_sampling();
@@ -444,28 +457,9 @@ public:
                 specular_chain &= !act_medium_scatter;
                 specular_chain |= act_medium_scatter && !sample_emitters;
 
-                Mask active_e = act_medium_scatter && sample_emitters;
-                if (dr::any_or<true>(active_e)) {
-                    // volpathlocal: the shadow ray's loop-bound trips kept
-                    auto [emitted, ds] = sample_emitter(mei, scene, sampler, medium, channel,
-                                                        ls.tripped, active_e);
-                    auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, ds.d, active_e);
-                    dr::masked(result, active_e) += throughput * phase_val * emitted *
-                                                    mis_weight(ds.pdf, dr::select(ds.delta, 0.f, phase_pdf));
-                }
-
-                // ------------------ Phase function sampling -----------------
+                // volpathlocal: sampled below, with the surface vertices'
+                active_e_medium = act_medium_scatter && sample_emitters;
                 dr::masked(phase, !act_medium_scatter) = nullptr;
-                auto [wo, phase_weight, phase_pdf] = phase->sample(phase_ctx, mei,
-                    sampler->next_1d(act_medium_scatter),
-                    sampler->next_2d(act_medium_scatter),
-                    act_medium_scatter);
-                act_medium_scatter &= phase_pdf > 0.f;
-                Ray3f new_ray  = mei.spawn_ray(wo);
-                dr::masked(ray, act_medium_scatter) = new_ray;
-                needs_intersection |= act_medium_scatter;
-                dr::masked(last_scatter_direction_pdf, act_medium_scatter) = phase_pdf;
-                dr::masked(throughput, act_medium_scatter) *= phase_weight;
             }
 
             // --------------------- Surface Interactions ---------------------
@@ -514,28 +508,60 @@ public:
                 }
             }
             active_surface &= si.is_valid();
+            // volpathlocal: the surface vertices' BSDF, then emitter sampling
+            // for both kinds of vertex (one call), then phase sampling (from
+            // the medium block above), then BSDF sampling
+            BSDFContext ctx;
+            BSDFPtr bsdf = nullptr;
+            Mask active_e_surface = false;
             if (dr::any_or<true>(active_surface)) {
                 // --------------------- Emitter sampling ---------------------
-                BSDFContext ctx;
-                BSDFPtr bsdf  = si.bsdf(ray);
-                Mask active_e = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) && (depth + 1 < m_max_depth_var); // volpathlocal: opaque depths
+                bsdf = si.bsdf(ray); // volpathlocal: (declared above)
+                active_e_surface = active_surface && has_flag(bsdf->flags(), BSDFFlags::Smooth) && (depth + 1 < m_max_depth_var); // volpathlocal: opaque depths, declared above
+            }
+            // volpathlocal: medium and surface vertices in one call
+            Mask active_e = active_e_medium || active_e_surface;
+            if (likely(dr::any_or<true>(active_e))) {
+                // volpathlocal: the shadow ray's loop-bound trips kept
+                auto [emitted, ds] = sample_emitter(mei, si, active_e_medium,
+                                                    active_e_surface, scene, sampler,
+                                                    medium, channel, ls.tripped, active_e);
+                if (dr::any_or<true>(active_e_medium)) { // volpathlocal: (from the medium block)
+                    auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, ds.d, active_e_medium);
+                    dr::masked(result, active_e_medium) += throughput * phase_val * emitted *
+                                                           mis_weight(ds.pdf, dr::select(ds.delta, 0.f, phase_pdf));
+                }
 
-                if (likely(dr::any_or<true>(active_e))) {
-                    // volpathlocal: the shadow ray's loop-bound trips kept
-                    auto [emitted, ds] = sample_emitter(si, scene, sampler, medium, channel,
-                                                        ls.tripped, active_e);
-
+                if (dr::any_or<true>(active_e_surface)) { // volpathlocal: surface vertices
                     // Query the BSDF for that emitter-sampled direction
                     Vector3f wo       = si.to_local(ds.d);
-                    Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e);
+                    Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e_surface);
                     bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi);
 
                     // Determine probability of having sampled that same
                     // direction using BSDF sampling.
-                    Float bsdf_pdf = bsdf->pdf(ctx, si, wo, active_e);
-                    result[active_e] += throughput * bsdf_val * mis_weight(ds.pdf, dr::select(ds.delta, 0.f, bsdf_pdf)) * emitted;
+                    // volpathlocal: (active_e_surface: the surface lanes of active_e)
+                    Float bsdf_pdf = bsdf->pdf(ctx, si, wo, active_e_surface);
+                    result[active_e_surface] += throughput * bsdf_val * mis_weight(ds.pdf, dr::select(ds.delta, 0.f, bsdf_pdf)) * emitted;
                 }
+            }
 
+            // volpathlocal: phase sampling, from the medium block above
+            if (dr::any_or<true>(act_medium_scatter)) {
+                // ------------------ Phase function sampling -----------------
+                auto [wo, phase_weight, phase_pdf] = phase->sample(phase_ctx, mei,
+                    sampler->next_1d(act_medium_scatter),
+                    sampler->next_2d(act_medium_scatter),
+                    act_medium_scatter);
+                act_medium_scatter &= phase_pdf > 0.f;
+                Ray3f new_ray  = mei.spawn_ray(wo);
+                dr::masked(ray, act_medium_scatter) = new_ray;
+                needs_intersection |= act_medium_scatter;
+                dr::masked(last_scatter_direction_pdf, act_medium_scatter) = phase_pdf;
+                dr::masked(throughput, act_medium_scatter) *= phase_weight;
+            }
+
+            if (dr::any_or<true>(active_surface)) {
                 // ----------------------- BSDF sampling ----------------------
                 auto [bs, bsdf_val] = bsdf->sample(ctx, si, sampler->next_1d(active_surface),
                                                    sampler->next_2d(active_surface), active_surface);
@@ -577,11 +603,16 @@ public:
 
 
     /// Samples an emitter in the scene and evaluates its attenuated contribution
-    template <typename Interaction>
+    // volpathlocal: from a medium vertex (mei, active_medium) or a surface
+    // one (si, active_surface) in one call, as Mitsuba's prbvolpath does; tripped
     std::tuple<Spectrum, DirectionSample3f>
-    sample_emitter(const Interaction &ref_interaction, const Scene *scene,
-                   Sampler *sampler, MediumPtr medium,
-                   UInt32 channel, UInt32 &tripped, Mask active) const { // volpathlocal: tripped
+    sample_emitter(const MediumInteraction3f &mei, const SurfaceInteraction3f &si_ref,
+                   const Mask &active_medium, const Mask &active_surface,
+                   const Scene *scene, Sampler *sampler, MediumPtr medium,
+                   UInt32 channel, UInt32 &tripped, Mask active) const {
+        Interaction3f ref_interaction = dr::zeros<Interaction3f>();
+        dr::masked(ref_interaction, active_medium) = Interaction3f(mei);
+        dr::masked(ref_interaction, active_surface) = Interaction3f(si_ref);
         Spectrum transmittance(1.0f);
 
         auto [ds, emitter_val] = scene->sample_emitter_direction(ref_interaction, sampler->next_2d(active), false, active);
@@ -596,9 +627,11 @@ public:
         Float max_dist = ray.maxt;
 
         // Potentially escaping the medium if this is the current medium's boundary
-        if constexpr (std::is_convertible_v<Interaction, SurfaceInteraction3f>)
-            dr::masked(medium, ref_interaction.is_medium_transition()) =
-                ref_interaction.target_medium(ray.d);
+        // volpathlocal: surface vertices only (si_ref: no medium vertex's)
+        if (dr::any_or<true>(active_surface)) {
+            Mask transition = active_surface && si_ref.is_medium_transition();
+            dr::masked(medium, transition) = si_ref.target_medium(ray.d);
+        }
 
         Float total_dist = 0.f;
         SurfaceInteraction3f si = dr::zeros<SurfaceInteraction3f>();
