@@ -12,17 +12,25 @@ deadline):
 - test02-04: hostile sizes, each refused with "damaged" before OpenVDB
   allocates for it: a root that declares 2^31 child nodes or 2^32-1
   tiles (a grid claiming ~10^12 voxels), a compressed chunk that claims
-  1 GiB, and one that claims to be stored raw at 1 GiB (OpenVDB would read
-  it over a 2 KB leaf: the crash stays in the reader).
+  1 GiB, and one that claims to be stored raw at 1 GiB (OpenVDB's own
+  chunk reader would read it over a 2 KB leaf; the reader's checked one,
+  src/loader/vdb_chunks.cpp, refuses it first and says why).
 - test05: the fuzzers' reproducers (tests/data/vdb_crashers/), each a
-  clear error, its reader within the memory bound of test01; the
-  fuzz_vdb_oom_* ones refused by the reader's memory budget.
+  clear error, never a crash of the reader (each crashed OpenVDB's chunk
+  reader; vdb_chunks.cpp's refuses them), its reader within the memory
+  bound of test01; the fuzz_vdb_oom_* ones refused by the reader's memory
+  budget.
 - test06: vdb2nvdb on the same files: an error, never an abort.
 - test07: a .vol whose header declares 10^12 voxels: refused from its header.
 - test10: lengths in a .vdb's header, grid descriptor and metadata that
   exceed the file (a grid name of 2 GB, a metadata value of 2 GB) and a
   damaged UUID: refused from the lengths, before OpenVDB allocates them,
   with what is damaged, through the plugin and vdb2nvdb alike.
+- test11: a grid's delayed-load metadata damaged (a blosc header past its
+  buffer, a mask of the wrong size, a size past the value; OpenVDB's
+  reader trusts all three, vdb_chunks.cpp checks them), and a vec3i whose
+  size field lies (OpenVDB reads 12 bytes whatever it says: loads, and the
+  checks after it stay where OpenVDB reads).
 """
 
 import json
@@ -175,13 +183,16 @@ def test03_chunk_claiming_a_gigabyte(fog, tmp_path):
     rows, _ = load_in_child([bad], timeout=120)
     assert not rows[0]["ok"] and "gig_chunk.vdb" in rows[0]["error"], rows[0]
     assert "damaged" in rows[0]["error"], rows[0]
+    # (vdb_chunks.cpp: a node's compressed chunk is at most its size + 16)
+    assert "chunk declares 1073741824 bytes of compressed data" in rows[0]["error"], rows[0]
     assert rows[0]["seconds"] < 10 and rows[0]["reader_peak_mb"] < 256, rows[0]
 
 
 def test04_raw_chunk_larger_than_its_leaf(fog, tmp_path):
-    """A negative size means "stored raw": OpenVDB reads that many bytes
-    into the leaf's 2 KB buffer. Whatever that does to the reader, the
-    plugin's process gets an error that names the file"""
+    """A negative size means "stored raw": OpenVDB's chunk reader reads that
+    many bytes into the leaf's 2 KB buffer. The reader's checked one
+    (vdb_chunks.cpp) compares the size with the leaf's first, and the
+    plugin's process gets an error that names the file and says so"""
     data = bytearray(fog.read_bytes())
     offsets = find_chunk_sizes(data)
     struct.pack_into("<q", data, offsets[len(offsets) // 2], -(1 << 30))
@@ -189,7 +200,8 @@ def test04_raw_chunk_larger_than_its_leaf(fog, tmp_path):
     bad.write_bytes(bytes(data))
     rows, _ = load_in_child([bad], timeout=120)
     assert not rows[0]["ok"] and "raw_chunk.vdb" in rows[0]["error"], rows[0]
-    assert "damaged" in rows[0]["error"] or "corrupt" in rows[0]["error"], rows[0]
+    assert "damaged voxel data: an uncompressed blosc chunk declares 1073741824 bytes " \
+        "where the node holds" in rows[0]["error"], rows[0]
 
 
 def crashers():
@@ -205,6 +217,7 @@ def test05_fuzzer_reproducers(crasher, tmp_path):
     f.write_bytes(crasher.read_bytes())
     rows, _ = load_in_child([f], timeout=120)
     check_refused_or_loaded(rows)
+    assert "crashed" not in rows[0]["error"], rows[0]
     # (the fuzz_vdb_oom_* files took OpenVDB over 2 GB in the fuzzer, which
     # reads them in its own process without a budget: the plugin's reader
     # refuses them within its budget, as test01 bounds it)
@@ -212,6 +225,21 @@ def test05_fuzzer_reproducers(crasher, tmp_path):
     if crasher.name.startswith("fuzz_vdb_oom"):
         assert "asks for more memory than a file of its size can need" in rows[0]["error"], \
             rows[0]
+    # What each says now (what it did to OpenVDB's reader: tests/fuzz/CAMPAIGN.md)
+    said = SAYS.get(crasher.name)
+    if said:
+        assert said in rows[0]["error"], rows[0]
+
+
+# What the reproducers that crashed OpenVDB's reader say now (the checks of
+# vdb_chunks.cpp and vdb_read.cpp)
+SAYS = {
+    "blosc_raw_chunk_overflow": "an uncompressed blosc chunk declares",
+    "fuzz_vdb_lz4_508e558f12ce": "has a corrupt header",
+    "fuzz_vdb_lz4_b224fc37b6fe": "has a corrupt header",
+    # a root tile's active flag of 255, read into a bool (UBSan's finding)
+    "root_tile_active_flag": "\"vel\"'s root tile 150 (of 256) has an active flag of 255",
+}
 
 
 def test06_vdb2nvdb_reports_instead_of_aborting(fog, tmp_path):
@@ -340,6 +368,67 @@ def test10_lengths_past_the_end(fog, tmp_path):
         assert said in row["error"], row
         # refused from the length: no allocation of it, no time
         assert row["seconds"] < 5 and row["reader_peak_mb"] < 128, row
+        r = subprocess.run([str(VDB2NVDB), str(path), str(tmp_path / "o.nvdb")],
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 1 and said in r.stderr and path.name in r.stderr, r.stderr
+
+
+def delayed_load_cases(fog):
+    """{name: (bytes, what the error must say, or None: it loads)}: the
+    generated fog's delayed-load metadata (OpenVDB's "__delayedload" value:
+    count, then a blosc-compressed mask) damaged, and a fixed-size value
+    whose size field lies (OpenVDB reads a vec3i's 12 bytes whatever it
+    says; the checks must follow it)"""
+    data = bytes(fog.read_bytes())
+    tag = struct.pack("<I", 13) + b"__delayedload"
+    i = data.index(tag) + len(tag)          # the value's uint32 size
+    count, b = struct.unpack_from("<II", data, i + 4)
+    assert b > 16, "the generated fog's delayed-load mask is not blosc-compressed"
+    header = i + 12                          # the mask's blosc header
+    cases = {}
+    d = bytearray(data)                      # blosc's cbytes past the buffer
+    struct.pack_into("<I", d, header + 12, b + 1000)
+    cases["dl_cbytes.vdb"] = (bytes(d), "a delayed-load value of")
+    d = bytearray(data)                      # a mask that is not `count` entries
+    struct.pack_into("<I", d, i + 4, 300)
+    cases["dl_count.vdb"] = (bytes(d), "its compressed mask decompresses to")
+    d = bytearray(data)                      # its compressed size past the value
+    struct.pack_into("<I", d, i + 8, 100000)
+    cases["dl_size.vdb"] = (bytes(d), "its compressed mask of 100000 bytes exceeds")
+    # file_bbox_max (a vec3i) says 100000 bytes: OpenVDB reads 12, and so
+    # must the checks, both where the file is intact after it ...
+    vec = struct.pack("<I", 13) + b"file_bbox_max" + struct.pack("<I", 5) + b"vec3i"
+    j = data.index(vec) + len(vec)
+    d = bytearray(data)
+    struct.pack_into("<I", d, j, 100000)
+    cases["vec3i_size.vdb"] = (bytes(d), None)
+    # ... and where a damaged delayed-load value follows it (a fuzz finding:
+    # the checks skipped the 100000 bytes and never saw the value)
+    struct.pack_into("<I", d, header + 12, b + 1000)
+    cases["vec3i_size_dl.vdb"] = (bytes(d), "a delayed-load value of")
+    return cases
+
+
+def test11_delayed_load_metadata_and_fixed_size_values(fog, tmp_path):
+    """OpenVDB's delayed-load reader hands blosc a buffer without its size,
+    from a header it trusts (io/DelayedLoadMetadata.cc): it crashed the
+    reader on the fuzzer's findings. Each damage is now refused with what
+    is wrong, through the plugin and vdb2nvdb; a file whose only damage is
+    a size field that OpenVDB ignores loads, as OpenVDB reads it"""
+    cases = delayed_load_cases(fog)
+    paths = []
+    for name, (content, _) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        paths.append(tmp_path / name)
+    rows, _ = load_in_child(paths, timeout=120)
+    for path, row in zip(paths, rows):
+        said = cases[path.name][1]
+        if said is None:
+            assert row["ok"], row
+            continue
+        assert not row["ok"] and f"{path.name}\": damaged: grid \"density\"'s metadata: " \
+            in row["error"], row
+        assert said in row["error"] and "crashed" not in row["error"], row
         r = subprocess.run([str(VDB2NVDB), str(path), str(tmp_path / "o.nvdb")],
                            capture_output=True, text=True, timeout=60)
         assert r.returncode == 1 and said in r.stderr and path.name in r.stderr, r.stderr

@@ -8,6 +8,7 @@
 // the converter cannot drift apart.
 
 #include "vdb_read.h"
+#include "vdb_chunks.h"
 
 #include <algorithm>
 #include <cctype>
@@ -80,6 +81,30 @@ public:
     /// A length-prefixed field: a string, or a metadata value
     void field(const char *name) { skip(length(name), name); }
 
+    /// The size at which OpenVDB reads a value of this metadata type,
+    /// whatever the value's size field says (none: it reads that many bytes)
+    static std::optional<uint64_t> fixed_size(const std::string &type) {
+        if (type.empty() || type == openvdb::StringMetadata::staticTypeName() ||
+            !openvdb::Metadata::isRegisteredType(type))
+            return std::nullopt;
+        return openvdb::Metadata::createMetadata(type)->size();
+    }
+
+    /// A length-prefixed string, read (one of up to 256 bytes; a longer
+    /// one is skipped and reads as "")
+    std::string text(const char *name) {
+        const uint64_t n = length(name);
+        if (n > left())
+            fail(name, n);
+        if (n > 256) {
+            m_is.seekg(std::streamoff(n), std::ios::cur);
+            return "";
+        }
+        std::string s(n, '\0');
+        m_is.read(s.data(), std::streamsize(n));
+        return s;
+    }
+
     void metadata() {
         const uint64_t count = length("metadata count");
         // each entry takes at least its three 4-byte lengths
@@ -87,8 +112,26 @@ public:
             fail("metadata count", count * 12);
         for (uint64_t i = 0; i < count; ++i) {
             field("metadata name");
-            field("metadata type name");
-            field("metadata value");
+            const std::string type = text("metadata type name");
+            const uint64_t n = length("metadata value");
+            if (type == vdb_reader::kDelayedLoadType) {
+                // Delayed-load values hold blosc buffers that OpenVDB
+                // trusts (vdb_chunks.h): read and checked here
+                if (n > left())
+                    fail("metadata value", n);
+                std::vector<char> value(n);
+                m_is.read(value.data(), std::streamsize(n));
+                const std::string bad = vdb_reader::delayed_load_damage(value.data(), value.size());
+                if (!bad.empty())
+                    throw Error(m_label + ": damaged: " + m_what + ": " + bad);
+                continue;
+            }
+            // The bytes OpenVDB's reader takes, so that the next entry is
+            // checked where OpenVDB reads it: a value of a fixed-size type
+            // (bool, vec3i, mat4d, ...) is read at its type's size, whatever
+            // its size field says (TypedMetadata::readValue); a string or a
+            // type OpenVDB does not know is read at its size field's
+            skip(fixed_size(type).value_or(n), "metadata value");
         }
     }
 
@@ -245,7 +288,8 @@ private:
      * minutes, and one of 4e9 children allocates 270 KB each. Each tile
      * takes at least its origin, value and active flag in the file, and
      * each child its origin and two 4096-byte masks, so counts that need
-     * more bytes than the grid has are damage, refused here.
+     * more bytes than the grid has are damage, refused here; so is a tile
+     * whose active flag is neither 0 nor 1.
      */
     void check_root_counts(const openvdb::io::GridDescriptor &d) {
         const uint32_t version = openvdb::io::getFormatVersion(m_is);
@@ -275,6 +319,20 @@ private:
                         std::to_string(tiles) + " tiles and " + std::to_string(children) +
                         " child nodes, which need at least " + std::to_string(need) +
                         " bytes; the grid has " + std::to_string(std::max<int64_t>(left, 0)));
+        // The tiles follow: origin, value and an active flag each, which
+        // RootNode::readTopology reads into a bool byte for byte (a flag of
+        // 45 is then undefined behaviour wherever the tile is tested)
+        const uint64_t tile_bytes = 12 + value_bytes + 1;
+        std::vector<char> records(size_t(tiles) * tile_bytes);
+        m_is.read(records.data(), std::streamsize(records.size()));
+        for (uint32_t t = 0; t < tiles; ++t) {
+            const unsigned char active = (unsigned char) records[t * tile_bytes + tile_bytes - 1];
+            if (active > 1)
+                throw Error(m_label + ": damaged: grid \"" + d.gridName() + "\"'s root tile " +
+                            std::to_string(t) + " (of " + std::to_string(tiles) +
+                            ") has an active flag of " + std::to_string(active) +
+                            ", where 0 or 1 is valid");
+        }
     }
 
     openvdb::GridBase::Ptr read_one(const openvdb::io::GridDescriptor &d) {
