@@ -106,7 +106,10 @@ tail -n 8 build-fuzz/fuzz_nvdb.log
 stage pytest "pytest"
 # One worker per core, each taking whole files (--dist loadfile: a file's
 # module fixtures, its generated grids and renders, stay in one process;
-# bench/PERF_LOG.md 28). NVDB_PYTEST_WORKERS=0 runs them in this process.
+# bench/PERF_LOG.md 28), the longest files first (tests/conftest.py's
+# FILE_SECONDS; --no-loadscope-reorder keeps that order: PERF_LOG 34).
+# NVDB_PYTEST_WORKERS=0 runs them in this process.
 # --durations: the 20 slowest, where CI's time goes (bench/PERF_LOG.md 29)
 "${PYTHON:-python3}" -m pytest -q tests -p no:cacheprovider \
-  -n "${NVDB_PYTEST_WORKERS:-$(nproc)}" --dist loadfile --durations=20 "$@"
+  -n "${NVDB_PYTEST_WORKERS:-$(nproc)}" --dist loadfile --no-loadscope-reorder \
+  --durations=20 "$@"

@@ -106,6 +106,30 @@ def pytest_configure(config):
                             'deselect with -m "not slow"')
 
 
+# The files in order of their run time, longest first: scripts/test.sh runs
+# them on one worker per core (pytest-xdist, --dist loadfile, with
+# --no-loadscope-reorder so that this order holds), and longest first keeps
+# both cores busy to the end (xdist's own order, by test count, left one
+# core idle for about 4 minutes: bench/PERF_LOG.md 34). Seconds of test
+# time on the 2-core CI machine (`--durations=0`, summed per file); a file
+# not listed runs after these, and its place is refreshed from the same
+# measurement when it grows.
+FILE_SECONDS = {
+    "test_upstream_renders.py": 405, "test_volpathlocal.py": 280,
+    "test_differentiable.py": 269, "test_readme.py": 202, "test_value_types.py": 123,
+    "test_termination.py": 95, "test_render.py": 90, "test_stochastic_filters.py": 90,
+    "test_emission.py": 88, "test_sequence.py": 88, "test_stability.py": 77,
+    "test_render_fire.py": 49, "test_upstream_volumes.py": 41, "test_vdb_import.py": 37,
+    "test_nanovdbvolume.py": 31, "test_vdb2nvdb.py": 30, "test_vdb_damaged.py": 23,
+    "test_pip_install.py": 20,
+}
+
+
+def pytest_collection_modifyitems(session, config, items):
+    # (stable: each file's tests stay together and in their order)
+    items.sort(key=lambda item: (-FILE_SECONDS.get(item.path.name, 0), item.path.name))
+
+
 def pytest_generate_tests(metafunc):
     # "variants_all": every non-CUDA variant, plus the CUDA ones when a GPU exists
     if "variants_all" in metafunc.fixturenames:
