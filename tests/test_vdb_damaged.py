@@ -355,14 +355,20 @@ def damaged_lengths(fog):
     return cases
 
 
-def test10_lengths_past_the_end(fog, tmp_path):
-    cases = damaged_lengths(fog)
+def load_cases(cases, tmp_path):
+    """Writes {name: (bytes, ...)} to files and loads them all in one child
+    Mitsuba process: [(path, its row)]"""
     paths = []
     for name, (content, _) in cases.items():
         (tmp_path / name).write_bytes(content)
         paths.append(tmp_path / name)
     rows, _ = load_in_child(paths, timeout=120)
-    for path, row in zip(paths, rows):
+    return list(zip(paths, rows))
+
+
+def test10_lengths_past_the_end(fog, tmp_path):
+    cases = damaged_lengths(fog)
+    for path, row in load_cases(cases, tmp_path):
         said = cases[path.name][1]
         assert not row["ok"] and f"{path.name}\": damaged: " in row["error"], row
         assert said in row["error"], row
@@ -416,12 +422,7 @@ def test11_delayed_load_metadata_and_fixed_size_values(fog, tmp_path):
     is wrong, through the plugin and vdb2nvdb; a file whose only damage is
     a size field that OpenVDB ignores loads, as OpenVDB reads it"""
     cases = delayed_load_cases(fog)
-    paths = []
-    for name, (content, _) in cases.items():
-        (tmp_path / name).write_bytes(content)
-        paths.append(tmp_path / name)
-    rows, _ = load_in_child(paths, timeout=120)
-    for path, row in zip(paths, rows):
+    for path, row in load_cases(cases, tmp_path):
         said = cases[path.name][1]
         if said is None:
             assert row["ok"], row

@@ -113,6 +113,22 @@ std::unique_ptr<char[]> read_compressed(std::istream &is, uint64_t n, uint64_t b
     return buf;
 }
 
+/**
+ * A chunk's start: its count, and a stored chunk (or any chunk skipped,
+ * data == nullptr) read whole. Returns the byte count of a compressed
+ * chunk still to read into `data`, or 0 once the chunk is done.
+ */
+uint64_t begin_chunk(std::istream &is, char *data, size_t numBytes, const char *codec) {
+    const Int64 n = read_count(is, codec);
+    if (n <= 0)
+        read_stored(is, data, numBytes, n, codec);
+    else if (data == nullptr)
+        read_exactly(is, nullptr, uint64_t(n), codec);
+    else
+        return uint64_t(n);
+    return 0;
+}
+
 } // namespace
 
 namespace openvdb {
@@ -121,43 +137,39 @@ namespace OPENVDB_VERSION_NAME {
 namespace io {
 
 void bloscFromStream(std::istream &is, char *data, size_t numBytes) {
-    const Int64 n = read_count(is, "blosc");
-    if (n <= 0)
-        return read_stored(is, data, numBytes, n, "blosc");
-    if (data == nullptr)
-        return read_exactly(is, nullptr, uint64_t(n), "blosc");
+    const uint64_t n = begin_chunk(is, data, numBytes, "blosc");
+    if (n == 0)
+        return;
     // blosc never makes more than its header over the input (it stores a
     // block that does not compress), and OpenVDB writes what it made
-    std::unique_ptr<char[]> src = read_compressed(
-        is, uint64_t(n), uint64_t(numBytes) + BLOSC_MAX_OVERHEAD, numBytes, "blosc");
+    std::unique_ptr<char[]> src =
+        read_compressed(is, n, uint64_t(numBytes) + BLOSC_MAX_OVERHEAD, numBytes, "blosc");
     // The chunk's own header (sizes, block starts) checked against the bytes
     // that are there, before blosc reads as many as it says
     size_t declared = 0;
     if (blosc_cbuffer_validate(src.get(), size_t(n), &declared) != 0)
-        damaged("a blosc chunk of " + bytes(uint64_t(n)) + " has a corrupt header");
+        damaged("a blosc chunk of " + bytes(n) + " has a corrupt header");
     if (declared != numBytes)
         damaged("a blosc chunk decompresses to " + bytes(declared) + " where the node holds " +
                 bytes(numBytes));
     const int got = blosc_decompress_ctx(src.get(), data, numBytes, /*numinternalthreads=*/1);
     if (got < 0 || size_t(got) != numBytes)
-        damaged("a blosc chunk of " + bytes(uint64_t(n)) + " does not decompress (" +
+        damaged("a blosc chunk of " + bytes(n) + " does not decompress (" +
                 (got < 0 ? "corrupt data" : "it gives " + bytes(uint64_t(got))) +
                 ", where the node holds " + bytes(numBytes) + ")");
 }
 
 void unzipFromStream(std::istream &is, char *data, size_t numBytes) {
-    const Int64 n = read_count(is, "zip");
-    if (n <= 0)
-        return read_stored(is, data, numBytes, n, "zip");
-    if (data == nullptr)
-        return read_exactly(is, nullptr, uint64_t(n), "zip");
-    std::unique_ptr<char[]> src = read_compressed(is, uint64_t(n), compressBound(uLong(numBytes)),
-                                                  numBytes, "zip");
+    const uint64_t n = begin_chunk(is, data, numBytes, "zip");
+    if (n == 0)
+        return;
+    std::unique_ptr<char[]> src =
+        read_compressed(is, n, compressBound(uLong(numBytes)), numBytes, "zip");
     uLongf got = uLongf(numBytes);
     const int status = uncompress(reinterpret_cast<Bytef *>(data), &got,
                                   reinterpret_cast<const Bytef *>(src.get()), uLong(n));
     if (status != Z_OK || got != numBytes)
-        damaged("a zip chunk of " + bytes(uint64_t(n)) + " does not decompress (" +
+        damaged("a zip chunk of " + bytes(n) + " does not decompress (" +
                 (status != Z_OK ? std::string("zlib: ") + zError(status)
                                 : "it gives " + bytes(uint64_t(got))) +
                 ", where the node holds " + bytes(numBytes) + ")");
