@@ -106,8 +106,10 @@ marked ``// volpathlocal:``; the tracking itself is in
 ``src/integrators/tracking.h``. One difference is one of order: as in
 Mitsuba's ``prbvolpath``, a medium vertex and a surface vertex sample their
 emitter in one call, after the surface interactions, so that a compiled
-kernel holds one shadow ray and not two (the same samples, so the same
-images, bit for bit, on Mitsuba's medium test scenes). A medium is tracked when its ``sigma_t``
+kernel holds one shadow ray and not two. Each lane draws the same samples
+in the same order as before, so the images are the same: bit for bit in
+``scalar_rgb`` on Mitsuba's medium test scenes, within float rounding in
+LLVM variants (bench/PERF_LOG.md §33). A medium is tracked when its ``sigma_t``
 offers local majorants (``nanovdb_mitsuba/local_majorants.h``), it exposes
 a ``scale``, and its own global majorant is ``scale * max()`` (what
 ``heterogeneous`` does).
