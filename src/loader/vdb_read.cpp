@@ -68,9 +68,15 @@ bool convertible(const openvdb::GridBase &g) {
  */
 class LengthCheck {
 public:
-    /// `end`: the byte the fields must end by; `what`: the error's subject
-    LengthCheck(std::istream &is, int64_t end, const std::string &label, std::string what)
-        : m_is(is), m_start(is.tellg()), m_end(end), m_label(label), m_what(std::move(what)) {}
+    /// The bytes the fields must fit in: the rest of the file, or of a grid
+    enum class Within { File, Grid };
+
+    /// `end`: the byte the fields must end by (the file's or the grid's
+    /// end, `within`); `what`: the error's subject
+    LengthCheck(std::istream &is, int64_t end, Within within, const std::string &label,
+                std::string what)
+        : m_is(is), m_start(is.tellg()), m_end(end), m_within(within), m_label(label),
+          m_what(std::move(what)) {}
     ~LengthCheck() {
         m_is.clear();
         m_is.seekg(m_start);
@@ -166,12 +172,13 @@ private:
     [[noreturn]] void fail(const char *name, uint64_t need) const {
         throw Error(m_label + ": damaged: " + m_what + ": its " + name + " needs " +
                     std::to_string(need) + " bytes, and " + std::to_string(left()) +
-                    " are left" + (m_what.rfind("grid", 0) == 0 ? " in the grid" : " in the file"));
+                    " are left" + (m_within == Within::Grid ? " in the grid" : " in the file"));
     }
 
     std::istream &m_is;
     std::streampos m_start;
     int64_t m_end;
+    Within m_within;
     const std::string &m_label;
     std::string m_what;
 };
@@ -213,7 +220,8 @@ public:
             throw Error(label + ": damaged: its header cannot be read (a corrupt version, "
                                 "flag or UUID field)");
         openvdb::MetaMap file_meta;
-        LengthCheck(m_is, m_size, label, "the file's metadata").metadata();
+        LengthCheck(m_is, m_size, LengthCheck::Within::File, label, "the file's metadata")
+            .metadata();
         file_meta.readMeta(m_is);
         if (!inputHasGridOffsets())
             throw NoOffsets{};
@@ -222,7 +230,8 @@ public:
             throw Error(label + ": cannot read as an OpenVDB file: bad grid count");
         for (int32_t i = 0; i < count; ++i) {
             Grid g;
-            LengthCheck(m_is, m_size, label, "the descriptor of grid " + std::to_string(i))
+            LengthCheck(m_is, m_size, LengthCheck::Within::File, label,
+                        "the descriptor of grid " + std::to_string(i))
                 .descriptor(openvdb::io::getFormatVersion(m_is));
             g.grid = g.descriptor.read(m_is);
             const openvdb::io::GridDescriptor &d = g.descriptor;
@@ -237,7 +246,8 @@ public:
             // Its metadata (name, class), as File::readAllGridMetadata
             d.seekToGrid(m_is);
             readGridCompression(m_is);
-            LengthCheck(m_is, d.getEndPos(), label, "grid \"" + d.gridName() + "\"'s metadata")
+            LengthCheck(m_is, d.getEndPos(), LengthCheck::Within::Grid, label,
+                        "grid \"" + d.gridName() + "\"'s metadata")
                 .metadata();
             g.grid->readMeta(m_is);
             g.grid->setName(d.gridName());
