@@ -5,13 +5,14 @@ Every case ends up as a `.nvdb` for `nanovdbvolume` and an aligned dense
 same image under the same `to_world`).
 """
 import hashlib
-import json
 import os
 import struct
 import subprocess
 import sys
 
 import numpy as np
+
+import harness  # (bench/: the dense export runs in a worker process)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
@@ -211,14 +212,11 @@ def nvdb_case(arg, data_dir, build, max_dense_bytes, log=sys.stdout):
     if not os.path.exists(vol):
         os.makedirs(os.path.dirname(base), exist_ok=True)
         spec = {"mode": "dense", "variant": "llvm_ad_rgb", "build": build, "volume": path,
-                "grid": grid, "dense_out": vol, "max_dense_bytes": max_dense_bytes,
-                "out_json": base + ".dense.json"}
-        with open(base + ".dense_spec.json", "w") as f:
-            json.dump(spec, f)
+                "grid": grid, "dense_out": vol, "max_dense_bytes": max_dense_bytes}
         print(f"  dense export of {path} (nanovdbvolume, nearest)", file=log, flush=True)
-        r = subprocess.run([sys.executable, os.path.join(HERE, "worker.py"),
-                            base + ".dense_spec.json"])
-        if r.returncode != 0:
-            raise RuntimeError(f"dense export of {path} failed")
+        try:
+            harness.run_child("worker:measure", spec, echo=True)
+        except harness.ChildFailed as e:
+            raise RuntimeError(f"dense export of {path} failed") from e
     name = os.path.splitext(os.path.basename(path))[0] + (f":{grid}" if grid else "")
     return Case(name, path, vol, grid, "nvdb", f"{path} (as given)")

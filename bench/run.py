@@ -10,7 +10,7 @@ volpathlocal integrator against volpath.
     python3 bench/run.py --integrators volpath      # the plugin comparison alone
 
 Per case, variant, integrator + plugin and filter, a fresh worker process
-(bench/worker.py) measures the volume's memory, random-lookup throughput,
+(bench/worker.py's measure(), through bench/harness.py) measures the volume's memory, random-lookup throughput,
 the render time of an 8-sensor turntable at equal spp (cold + >= 5 warm
 runs) and an spp sweep. The integrator axis: volpath with both plugins
 everywhere, and volpathlocal with nanovdbvolume on the integrator comparison's
@@ -38,6 +38,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 import cases as cases_mod  # noqa: E402
+import harness  # noqa: E402
 import metrics  # noqa: E402
 
 PLUGINS = ["nanovdbvolume", "gridvolume"]
@@ -111,33 +112,29 @@ class Runner:
         self.n_workers = 0
 
     def worker(self, spec, tag, timeout):
-        """Runs one worker with an empty Dr.Jit kernel cache (HOME of its own),
-        so the first render's JIT compilation is really measured."""
-        spec = dict(spec, build=self.args.build, out_json=os.path.join(self.work, tag + ".json"),
-                    out_npz=os.path.join(self.work, tag + ".npz"))
-        spec_path = os.path.join(self.work, tag + ".spec.json")
-        with open(spec_path, "w") as f:
-            json.dump(spec, f)
+        """Runs one worker (worker.measure, through harness.py) with an empty
+        Dr.Jit kernel cache (HOME of its own), so the first render's JIT
+        compilation is really measured."""
+        spec = dict(spec, build=self.args.build, out_npz=os.path.join(self.work, tag + ".npz"))
         home = tempfile.mkdtemp(prefix="jit_home_", dir=self.work)
-        env = dict(os.environ, HOME=home)
         t0 = time.perf_counter()
         self.n_workers += 1
+        res, output = None, ""
         try:
-            r = subprocess.run([sys.executable, os.path.join(HERE, "worker.py"), spec_path],
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                               text=True, timeout=timeout)
-            ok = r.returncode == 0 and os.path.exists(spec["out_json"])
-            output = r.stdout
-        except subprocess.TimeoutExpired as e:
-            ok, output = False, f"timed out after {timeout} s\n{e.stdout or ''}"
+            res = harness.run_child("worker:measure", spec, home=home, timeout=timeout)
+        except harness.ChildFailed as e:
+            output = str(e)
+        except subprocess.TimeoutExpired:
+            output = f"timed out after {timeout} s"
         finally:
             shutil.rmtree(home, ignore_errors=True)
         dt = time.perf_counter() - t0
-        if not ok:
+        if res is None:
             self.failures.append((tag, output[-3000:]))
             log(f"    FAILED {tag} ({dt:.1f} s):\n{output[-3000:]}")
             return None, None
-        res = json.load(open(spec["out_json"]))
+        with open(os.path.join(self.work, tag + ".json"), "w") as f:
+            json.dump(res, f, indent=1)  # (kept beside the images, as before)
         res["worker_wall_s"] = dt
         npz = dict(np.load(spec["out_npz"])) if os.path.exists(spec["out_npz"]) else {}
         return res, npz

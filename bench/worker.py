@@ -1,12 +1,13 @@
-"""One measurement in a fresh process (started by bench/run.py).
+"""One measurement in a fresh process: `measure(spec)`, run by bench/run.py
+(and bench/cases.py's dense export) through bench/harness.py,
 
-    python3 bench/worker.py SPEC.json
+    harness.run_child("worker:measure", spec, home=..., timeout=...)
 
-SPEC.json holds {"mode": "measure" | "reference" | "dense", ...} (see
-run.py). A fresh process per (case, variant, integrator, plugin, filter)
-makes the peak RSS meaningful and keeps Dr.Jit's allocator statistics to one
-volume. The result is written to spec["out_json"] (and images to
-spec["out_npz"]).
+spec holds {"mode": "measure" | "reference" | "dense", ...} (see run.py).
+A fresh process per (case, variant, integrator, plugin, filter) makes the
+peak RSS meaningful and keeps Dr.Jit's allocator statistics to one volume.
+The result is the returned dict (harness.py hands it back as JSON); images
+are written to spec["out_npz"].
 spec["integrator"] (volpath, volpathlocal) picks the scene's integrator;
 spec["count_lookups"] adds lookups and walk steps per camera path, counted
 on a render of their own after the timed ones.
@@ -25,7 +26,6 @@ Memory of the volume is measured across mi.load_dict() of the volume alone:
 - gpu_used (CUDA): device memory in use after minus before, as the driver
   reports it (NVML, i.e. nvidia-smi; bench/gpu.py).
 """
-import json
 import os
 import re
 import resource
@@ -206,19 +206,17 @@ def jit_compile_ms(dr):
             "jit_cache_hits": hits}
 
 
-def main():
-    spec = json.load(open(sys.argv[1]))
+def measure(spec):
     from child_setup import mitsuba_for
     dr, mi = mitsuba_for(spec["variant"], spec["build"])
     from scene import turntable_scene
-    out = {"spec": {k: v for k, v in spec.items() if k not in ("out_json", "out_npz")},
+    out = {"spec": {k: v for k, v in spec.items() if k != "out_npz"},
            "loadavg_start": os.getloadavg()}
     jit = dr.is_jit_v(mi.Float)
 
     if spec["mode"] == "dense":
         dense_export(mi, dr, spec, out)
-        json.dump(out, open(spec["out_json"], "w"), indent=1)
-        return
+        return out
 
     vol, mem = load_volume(mi, dr, spec)
     out.update(mem)
@@ -282,7 +280,7 @@ def main():
     out["loadavg_end"] = os.getloadavg()
     if images:
         np.savez(spec["out_npz"], **images)
-    json.dump(out, open(spec["out_json"], "w"), indent=1)
+    return out
 
 
 def dense_export(mi, dr, spec, out):
@@ -316,6 +314,3 @@ def dense_export(mi, dr, spec, out):
     os.replace(tmp, spec["dense_out"])
     out["dense_resolution"] = [X, Y, Z]
 
-
-if __name__ == "__main__":
-    main()
