@@ -48,8 +48,11 @@ for t in "${targets[@]}"; do
   [ -d "$shared" ] && seeds+=("$shared")
   echo "== fuzz_$t for ${seconds} s"
   start=$(date -u +%Y-%m-%dT%H:%MZ)
+  # (-rss_limit_mb: OpenVDB leaks what it built when a damaged file makes
+  # it throw, which adds up over a job's inputs in one process; at 2 GB a
+  # job ended every ~2.5 minutes and restarted, reloading its inputs)
   nice -n 10 "$bin" -fork=1 -ignore_crashes=1 -ignore_ooms=1 -ignore_timeouts=1 \
-    -timeout=30 -rss_limit_mb=2048 -max_len="$max_len" -max_total_time="$seconds" \
+    -timeout=30 -rss_limit_mb=4096 -max_len="$max_len" -max_total_time="$seconds" \
     -artifact_prefix="$work/findings/" "$work/corpus" "${seeds[@]}" > "$work/last.log" 2>&1 || true
   # fork mode's status lines: "#EXECS: cov: C ft: F corp: N exec/s: E oom/timeout/crash: a/b/c ..."
   last=$(grep -E '^#[0-9]+: cov:' "$work/last.log" | tail -n 1 || true)
