@@ -88,7 +88,11 @@ for t in "${targets[@]}"; do
     fi
     contained=$(grep -c '^ok: ' "$work/triaged.log" || true)
     failed=$(grep -c '^FAIL' "$work/triaged.log" || true)
-    triage=" (${#new_findings[@]} new; triaged in all: $contained contained in the reader, $failed FAIL)"
+    # (the new ones that crashed the plugin's uninstrumented reader process:
+    # contained, each a check the reader lacks; triage_vdb.py)
+    crashed=0
+    [ ${#new_findings[@]} -eq 0 ] || crashed=$(grep -E '^(ok|FAIL): ' "$work/triage.log" | grep -c "reader crashed" || true)
+    triage=" (${#new_findings[@]} new, $crashed of them crashing the reader's process; triaged in all: $contained contained in the reader, $failed FAIL)"
   fi
   [ -f "$log" ] || printf '# Fuzz campaign\n\nOne row per run of `scripts/fuzz_campaign.sh` (one core, niced). Executions, coverage (edges) and features are libFuzzer'"'"'s final status line; oom/timeout/crash its counts; findings the artifacts kept.\n\n| start (UTC) | target | seconds | executions | cov | ft | oom/timeout/crash | findings | corpus files (KiB) |\n|---|---|---|---|---|---|---|---|---|\n' > "$log"
   echo "| $start | fuzz_$t | $seconds | ${execs:-?} | ${cov:-?} | ${ft:-?} | ${otc:-?} | $findings$triage | $files ($kb) |" >> "$log"
