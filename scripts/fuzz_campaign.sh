@@ -61,7 +61,9 @@ for t in "${targets[@]}"; do
   ft=$(sed -E 's/.* ft: ([0-9]+).*/\1/' <<<"$last")
   otc=$(sed -E 's#.*oom/timeout/crash: ([0-9/]+).*#\1#' <<<"$last")
   # the committed corpus: only inputs that add coverage (-merge=1)
-  "$bin" -merge=1 "tests/fuzz/corpus/$t" "$work/corpus" > "$work/merge.log" 2>&1 || true
+  # (-artifact_prefix: an input that runs out of memory in the merge lands
+  # there, not in the working directory)
+  "$bin" -merge=1 -artifact_prefix="$work/" "tests/fuzz/corpus/$t" "$work/corpus" > "$work/merge.log" 2>&1 || true
   # kept small: new inputs over 256 KB (.nvdb: mutants of the generator's
   # typed seeds, which the test command makes again) or 64 KB (.vdb: mutants
   # of the shared files' first 128 KB) stay in the campaign's own corpus
