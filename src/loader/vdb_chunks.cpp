@@ -49,7 +49,6 @@
 #include <cstring>
 #include <istream>
 #include <memory>
-#include <sstream>
 #include <string>
 
 namespace {

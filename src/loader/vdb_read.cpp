@@ -100,15 +100,21 @@ public:
     /// one is skipped and reads as "")
     std::string text(const char *name) {
         const uint64_t n = length(name);
-        if (n > left())
-            fail(name, n);
         if (n > 256) {
-            m_is.seekg(std::streamoff(n), std::ios::cur);
+            skip(n, name);
             return "";
         }
-        std::string s(n, '\0');
-        m_is.read(s.data(), std::streamsize(n));
-        return s;
+        std::vector<char> s = bytes(n, name);
+        return std::string(s.begin(), s.end());
+    }
+
+    /// The next n bytes, which must be there
+    std::vector<char> bytes(uint64_t n, const char *name) {
+        if (n > left())
+            fail(name, n);
+        std::vector<char> out(n);
+        m_is.read(out.data(), std::streamsize(n));
+        return out;
     }
 
     void metadata() {
@@ -123,10 +129,7 @@ public:
             if (type == vdb_reader::kDelayedLoadType) {
                 // Delayed-load values hold blosc buffers that OpenVDB
                 // trusts (vdb_chunks.h): read and checked here
-                if (n > left())
-                    fail("metadata value", n);
-                std::vector<char> value(n);
-                m_is.read(value.data(), std::streamsize(n));
+                const std::vector<char> value = bytes(n, "metadata value");
                 const std::string bad = vdb_reader::delayed_load_damage(value.data(), value.size());
                 if (!bad.empty())
                     throw Error(m_label + ": damaged: " + m_what + ": " + bad);
