@@ -286,3 +286,39 @@ def test07_the_printed_optical_depth_is_the_real_one(case, tmp_path, capsys):
     setup(mi)
     depth = mean_optical_depth(files.load_volume(mi, vdb), scale)
     assert depth == pytest.approx(scale * mean * extent, rel=1e-5 if n == 24 else 5e-3)
+
+
+def test08_shadow_rays_go_to_the_sun(tmp_path):
+    """framed_scene gives the sky a sampling_weight of 0: next-event
+    estimation samples the sun alone, and phase sampling finds the sky (MIS
+    weight 1 there, the sky's emitter pdf being 0). Against Mitsuba's
+    default choice, where half the shadow rays go to the sky: the same mean
+    (a z-test on the image means of independent renders) and a lower
+    variance per sample (1.9x on the shared smoke and the generator's cloud
+    at 128²; bench/INTEGRATOR_LOG.md, 2026-11-27). llvm_ad_rgb, cloud_32."""
+    import mitsuba as mi
+    from nanovdb_mitsuba import setup
+    from nanovdb_mitsuba.scene import framed_scene
+    vdb = tmp_path / "cloud_32.vdb"
+    vdb2nvdb("generate", "cloud_32", vdb)
+    mi.set_variant("llvm_ad_rgb")
+    setup(mi)
+    renders = {}
+    for name, sky_weight in (("framed", None), ("mitsuba's default", 1.0)):
+        desc, _ = framed_scene(mi, str(vdb), res=24, spp=8, filter_type="trilinear")
+        if sky_weight is not None:
+            desc["sky"]["sampling_weight"] = sky_weight
+        desc["sensor"]["film"]["rfilter"] = {"type": "box"}  # (independent pixels)
+        scene = mi.load_dict(desc)
+        base = 1000 if sky_weight is None else 2000
+        renders[name] = np.stack([np.array(mi.render(scene, seed=base + s))[..., :3]
+                                  for s in range(24)]).astype(np.float64)
+    sky = np.array([0.15, 0.18, 0.25])
+    mask = np.any(np.abs(renders["mitsuba's default"].mean(0) - sky) > 0.02, axis=-1)
+    assert mask.sum() > 50, "the volume covers too few pixels to compare"
+    means = {k: v[:, mask].mean(axis=(1, 2)) for k, v in renders.items()}
+    a, b = means["framed"], means["mitsuba's default"]
+    se = np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
+    assert abs(a.mean() - b.mean()) < 4 * se, (a.mean(), b.mean(), se)
+    var = {k: v.var(axis=0, ddof=1)[mask].mean() for k, v in renders.items()}
+    assert var["mitsuba's default"] > 1.3 * var["framed"], var
