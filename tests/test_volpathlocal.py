@@ -699,3 +699,41 @@ def test19_spectral_extinction_scattering_matches_volpath(variants_rgb):
     def scene(integrator, **kw):
         return sky_and_sun_scene(integrator, {"cube": unit_cube(med)}, **kw)
     assert_same_expectation(scene, spp=64 if dr.is_jit_v(mi.Float) else 16)
+
+
+def test20_columns_stiff_shadow_rays_analytic(variants_rgb, tmp_path):
+    # Issue 34's stiff cases for the estimators that exist: 13 columns along
+    # x with densities 1e-6, 1e-5, ..., 1e6 in one grid (nearest), scale
+    # 1e-3, so that a ray along +z through column c has optical depth
+    # tau_c = 1e-9 ... 1e3. With the sun behind the camera (shadow=True)
+    # each pixel estimates T^2 = exp(-2 tau): delta tracking on the camera
+    # ray, ratio tracking on the shadow ray, against each leaf's majorant
+    # (the column of 1e6 shares leaf 1 with those of 1e2 ... 1e5, which
+    # ratio tracking then crosses with fractional weights). Every estimate
+    # is finite and in [0, 1]; each column's mean (its 3 x 39 pixels) is within 5 standard
+    # errors of exp(-2 tau) (a variable in [0, 1] of mean m has variance
+    # at most m (1 - m)), and the two stiffest columns (tau = 100 and 1000)
+    # are exactly 0.
+    nvdb, _, _ = make_stab(tmp_path, "cols", "--min", 0, 0, 0, "--max", 12, 3, 3,
+                           "--fill", "columns", "--lo", 1e-6, "--ratio", 10, dense=False)
+    vol = load_nvdb(nvdb, filter_type="nearest")
+    per, scale = 3, 1e-3  # (pixels per column)
+    size = 13 * per
+    spp = 256 if dr.is_jit_v(mi.Float) else 32
+    taus = np.array([float(np.float32(1e-6 * 10.0 ** c)) for c in range(13)]) * scale
+    for coarse in [0.0, 2.0]:
+        img = transmittance_scene("volpathlocal", vol, scale=scale, size=size, spp=spp,
+                                  view=(0.0, 1.0), shadow=True, coarse_optical_depth=coarse)
+        assert np.all(np.isfinite(img)) and np.all(img >= 0) and np.all(img <= 1 + 1e-6)
+        if img.mean(axis=0)[1] < img.mean(axis=0)[-2]:  # (which way the image's x runs)
+            img = img[:, ::-1]
+        for c in range(13):
+            centre = img[:, c * per:(c + 1) * per]  # the pixel columns inside voxel column c
+            expect = math.exp(-2.0 * taus[c])
+            if taus[c] >= 100:
+                assert np.all(centre == 0.0), (c, coarse, centre.max())
+                continue
+            tol = max(5 * math.sqrt(expect * (1 - expect) / (centre.size * spp)), 1e-6)
+            if mi.is_spectral:  # (colour noise of the wavelength sampling)
+                tol += 5 * float(np.std(centre)) / math.sqrt(centre.size)
+            assert abs(centre.mean() - expect) <= tol, (c, coarse, centre.mean(), expect, tol)
