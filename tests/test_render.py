@@ -294,7 +294,7 @@ def test08_shadow_rays_go_to_the_sun(tmp_path):
     weight 1 there, the sky's emitter pdf being 0). Against Mitsuba's
     default choice, where half the shadow rays go to the sky: the same mean
     (a z-test on the image means of independent renders) and a lower
-    variance per sample (1.9x on the shared smoke and the generator's cloud
+    variance per sample (1.8-1.9x on the shared smoke and the generator's cloud
     at 128²; bench/INTEGRATOR_LOG.md, 2026-11-27). llvm_ad_rgb, cloud_32."""
     import mitsuba as mi
     from nanovdb_mitsuba import setup

@@ -223,7 +223,7 @@ def framed_scene(mi, filename, grid="", scale=None, res=256, spp=64,
         # proportion to a constant sky's light (up to visibility), and MIS
         # then gives the sky it finds its full weight, while the sun, a delta
         # light, can only be reached by a shadow ray. With Mitsuba's default,
-        # half the shadow rays went to the sky: 1.9x the variance per sample
+        # half the shadow rays went to the sky: 1.8-1.9x the variance per sample
         # on the shared smoke and the generator's cloud, same mean (bench/
         # INTEGRATOR_LOG.md, 2026-11-27, issue 34)
         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.15, 0.18, 0.25]},
