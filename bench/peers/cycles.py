@@ -71,7 +71,8 @@ def scene_and_renders(spec):
     out = dict(camera=dict(origin=info["camera"]["origin"], target=info["camera"]["target"],
                            fov=info["camera"]["fov"]),
                scale=info["scale"], albedo=0.9,
-               sun=dict(direction=list(sun["direction"]), irradiance=list(sun["irradiance"]["value"])),
+               sun=dict(direction=list(sun["direction"]),
+                        irradiance=list(sun["irradiance"]["value"])),
                sky=list(sky["radiance"]["value"]), renders=[])
     scene = mi.load_dict(desc)
     dr.eval(mi.render(scene, seed=999_999, spp=1))  # (the kernel's compile)
@@ -92,14 +93,16 @@ def cycles(spec, workdir):
     blender = shutil.which("blender")
     if not blender:
         raise SystemExit("cycles.py: no blender on PATH: run bash bench/peers/setup.sh")
-    spec_path, out_path = os.path.join(workdir, "cycles_spec.json"), os.path.join(workdir, "cycles_out.json")
+    spec_path = os.path.join(workdir, "cycles_spec.json")
+    out_path = os.path.join(workdir, "cycles_out.json")
     with open(spec_path, "w") as f:
         json.dump(spec, f)
     proc = subprocess.run([blender, "-b", "--factory-startup", "-noaudio", "-P",
                            os.path.join(HERE, "cycles_render.py"), "--", spec_path, out_path],
                           capture_output=True, text=True)
     if proc.returncode != 0 or not os.path.exists(out_path):
-        raise RuntimeError(f"blender failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+        raise RuntimeError(f"blender failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n"
+                           f"{proc.stderr[-3000:]}")
     with open(out_path) as f:
         return json.load(f)
 
@@ -220,7 +223,8 @@ def figure(row, out):
         by_spp = {}
         for e in errs:
             by_spp.setdefault(e["spp"], []).append(e)
-        pts = sorted((np.mean([e["time_s"] for e in v]), np.sqrt(np.mean([e["rel_rmse"] ** 2 for e in v])))
+        pts = sorted((np.mean([e["time_s"] for e in v]),
+                      np.sqrt(np.mean([e["rel_rmse"] ** 2 for e in v])))
                      for v in by_spp.values())
         ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", ms=3, color=color, label=label)
     for target in (0.05, 0.02):
@@ -241,21 +245,26 @@ def report(rows, args, out):
     lines = ["# Peer benchmark: Blender Cycles and volpathlocal (issue 34)", "",
              f"`python3 bench/peers/cycles.py {' '.join(sys.argv[1:])}`", "",
              f"{args.variant}, `{args.filter}`, {args.threads} threads, {args.res}², max_depth "
-             f"{args.max_depth}; references at {args.ref_spp} spp; bench/peers/cycles.py says how.", ""]
+             f"{args.max_depth}; references at {args.ref_spp} spp; bench/peers/cycles.py says "
+             "how.", ""]
     for row in rows:
         lines += [f"## {row['file']}", "",
                   f"density scale {row['scale']:.4g}; {row['pixels']} volume pixels", "",
-                  "| agreement with our reference | mean ratio (Cycles / ours) | relative RMSE | from noise alone |",
+                  "| agreement with our reference | mean ratio (Cycles / ours) | relative RMSE "
+                  "| from noise alone |",
                   "|---|---|---|---|"]
         for k, a in row["agreement"].items():
-            lines.append(f"| {k} | {a['mean_ratio']:.4f} | {a['rel_rmse']:.4f} | {a['noise_alone']:.4f} |")
-        lines += ["", "| renderer | time per spp (s) | rel. RMSE x sqrt(spp) | to 0.05 (s) | to 0.02 (s) | ratio to Cycles (0.05) |",
+            lines.append(f"| {k} | {a['mean_ratio']:.4f} | {a['rel_rmse']:.4f} "
+                         f"| {a['noise_alone']:.4f} |")
+        lines += ["", "| renderer | time per spp (s) | rel. RMSE x sqrt(spp) | to 0.05 (s) "
+                  "| to 0.02 (s) | ratio to Cycles (0.05) |",
                   "|---|---|---|---|---|---|"]
         tt = row["time_to"]
         cy_first = f"cycles {args.step_rates[0]}"
 
         def line(label, errs, key):
-            per_spp = np.median([e["time_s"] / e["spp"] for e in errs if e["spp"] == max(args.spp)])
+            per_spp = np.median([e["time_s"] / e["spp"] for e in errs
+                                 if e["spp"] == max(args.spp)])
             noise = np.median([e["rel_rmse"] * math.sqrt(e["spp"]) for e in errs])
             return (f"| {label} | {per_spp:.4f} | {noise:.3f} | {tt['0.05'][key]:.2f} | "
                     f"{tt['0.02'][key]:.2f} | {tt['0.05'][key] / tt['0.05'][cy_first]:.2f}x |")
