@@ -11,6 +11,7 @@ import argparse
 import csv
 import dataclasses
 import datetime
+import functools
 import os
 import platform
 import statistics
@@ -112,6 +113,9 @@ class Run:
     started: datetime.datetime
     elapsed: float            # seconds
     has_gpu: bool
+    machine: dict = None      # machine_record() of the machine that measured (results.json
+    #                           holds it: --report-only may run elsewhere); None: this one
+    rewritten: bool = False   # --report-only (a None machine then is not this one)
 
 
 @dataclasses.dataclass
@@ -222,10 +226,30 @@ def make_plots(run, t, case_names, main_variant):
         return [], plot_note
 
 
+@functools.lru_cache(maxsize=None)
+def machine_record(has_gpu):
+    """The header's machine, GPU, software and commit lines, as measured here
+    (bench/run.py stores them in results.json with the measurements)."""
+    cpu, ncpu, mem, vers, commit = machine_info()
+    rec = {"machine": f"{cpu}, {ncpu} cores, {mem} RAM; {platform.platform()}",
+           "software": f"Python {platform.python_version()}, "
+                       + ", ".join(f"{k} {v}" for k, v in vers.items()),
+           "commit": commit}
+    if has_gpu:
+        import gpu
+        rec["gpu"] = gpu.device_name() or "unknown (nvidia-smi not found)"
+    return rec
+
+
 def header_section(run, plot_note):
     """Title, command, machine, software and settings, then notes and failures."""
     a = run.args
-    cpu, ncpu, mem, vers, commit = machine_info()
+    m = run.machine
+    if m is None and run.rewritten:
+        # results.json from before the record existed: not this machine's
+        m = {k: "not recorded in results.json (a run before 2026-11-27; this report was "
+                "rewritten from it elsewhere)" for k in ("machine", "gpu", "software", "commit")}
+    m = m or machine_record(run.has_gpu)
     L = []
     w = L.append
     w("# nanovdbvolume vs gridvolume, volpathlocal vs volpath: benchmark report\n")
@@ -233,14 +257,12 @@ def header_section(run, plot_note):
       f"({a.mode} mode) on {run.started:%Y-%m-%d %H:%M %Z}, in {run.elapsed / 60:.1f} min. "
       "Methodology and caveats: [bench/README.md](../README.md). Benchmarks are "
       "measurements: the ✓/✗ below are reported, not asserted.\n")
-    w(f"- Machine: {cpu}, {ncpu} cores, {mem} RAM; {platform.platform()}.")
+    w(f"- Machine: {m['machine']}.")
     if run.has_gpu:
-        import gpu
-        w(f"- GPU: {gpu.device_name() or 'unknown (nvidia-smi not found)'}.")
-    w(f"- Software: Python {platform.python_version()}, "
-      + ", ".join(f"{k} {v}" for k, v in vers.items()) + ".")
+        w(f"- GPU: {m.get('gpu', 'unknown')}.")
+    w(f"- Software: {m['software']}.")
     w("- Plugins: `build/plugins/nanovdbvolume.so` (and `volpathlocal.so`) as built at the time "
-      f"of the run; repository at {commit or 'unknown commit'}.")
+      f"of the run; repository at {m['commit'] or 'unknown commit'}.")
     L += settings_lines(run)
     for n in run.notes:
         w(f"- {n}")

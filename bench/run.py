@@ -419,10 +419,12 @@ def main():
 
 
 def save(a, case_list, results, errors, refs_info, notes, failures, started, elapsed, has_gpu):
+    import report
     saved = {"settings": {k: v for k, v in vars(a).items()}, "argv": sys.argv[1:],
              "cases": [c.row() for c in case_list], "results": results, "errors": errors,
              "refs_info": refs_info, "notes": notes, "failures": failures,
-             "started": started.isoformat(), "elapsed": elapsed, "has_gpu": has_gpu}
+             "started": started.isoformat(), "elapsed": elapsed, "has_gpu": has_gpu,
+             "machine": report.machine_record(has_gpu)}
     os.makedirs(a.out, exist_ok=True)
     with open(os.path.join(a.out, "results.json.tmp"), "w") as f:
         json.dump(saved, f, indent=1, default=str)
@@ -443,7 +445,8 @@ def report_only(args):
                                 errors=saved["errors"], refs_info=saved["refs_info"],
                                 notes=saved["notes"], failures=failures,
                                 started=datetime.datetime.fromisoformat(saved["started"]),
-                                elapsed=saved["elapsed"], has_gpu=saved["has_gpu"]))
+                                elapsed=saved["elapsed"], has_gpu=saved["has_gpu"],
+                                machine=saved.get("machine"), rewritten=True))
     log(f"== report rewritten from {out}/results.json")
     sys.exit(1 if failures else 0)
 

@@ -8,17 +8,19 @@
 #                           variant modules removed)
 #   gpu-kit/build.tar.xz    build/plugins/{nanovdbvolume,volpathlocal,emissiveheterogeneous}.so, the test and tool
 #                           binaries (doctest suites, grid generators,
-#                           vdb2nvdb), the shared libraries they need that a
+#                           vdb2nvdb, nanovdb-vdb-reader: the plugin reads
+#                           .vdb files through it), the shared libraries they need that a
 #                           stock Linux lacks (OpenVDB, TBB, Blosc, ...), and
 #                           the real volumes of ../shared/data if present
-#   gpu-kit/source.tar.xz   this checkout's tests/, bench/, scenes/, scripts/
+#   gpu-kit/source.tar.xz   this checkout's tests/, bench/, scenes/, scripts/,
+#                           python/ (the nanovdb_mitsuba package the tests use)
 #   gpu-kit/MANIFEST.txt    what is inside, versions, sizes, commit
 #
 # Usage: bash scripts/gpu_kit_pack.sh [--python 3.12] [--variants "cuda_ad_rgb ..."] [--out DIR]
 #   --python    the GPU machine's Python (X.Y): the wheels are downloaded
 #               for it (the plugin and binaries do not depend on Python)
 #   --variants  Mitsuba variant modules to keep (default: scalar_rgb,
-#               llvm_ad_rgb and cuda_ad_{rgb,mono,spectral})
+#               llvm_ad_rgb and cuda_ad_{rgb,spectral})
 #   --out       the kit folder (default gpu-kit/, git-ignored)
 #
 # A test build without a GPU has no CUDA variants (scripts/install.sh): the
@@ -34,7 +36,10 @@ cd "$(dirname "$0")/.."
 ROOT=$PWD
 
 PYVER=3.12
-VARIANTS="scalar_rgb llvm_ad_rgb cuda_ad_rgb cuda_ad_mono cuda_ad_spectral"
+# llvm_ad_rgb: the render command's and the sequences' variant, which their
+# tests run on; cuda_ad_mono is left out so that the kit (~45 MB) and the
+# working tree (~20 MB) fit the 64 MiB a device call carries
+VARIANTS="scalar_rgb llvm_ad_rgb cuda_ad_rgb cuda_ad_spectral"
 OUT=gpu-kit
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -91,6 +96,13 @@ if [ ! -f "$py_tar" ]; then
    rm -rf mitsuba/include drjit/include mitsuba/cmake drjit/cmake mitsuba/pkgconfig \
           mitsuba/mitsuba_stubs ./*.dist-info/RECORD &&
    find . -name '*.pyi' -delete &&
+   # Mitsuba plugins that nothing in the suite or the benchmarks loads
+   # (Gaussian splats, curves, SDFs, sky models, hair, principled BSDFs:
+   # 25 MB): the kit travels beside the working tree, 64 MiB in all
+   for p in ellipsoids ellipsoidsmesh bsplinecurve linearcurve sdfgrid sunsky timed_sunsky \
+            hair measured_polarized principled principledthin pplastic; do
+     rm -f mitsuba/plugins/$p.so
+   done &&
    for m in mitsuba/scalar_*.cpython-*.so mitsuba/llvm_*.cpython-*.so mitsuba/cuda_*.cpython-*.so; do
      v=$(basename "$m"); v=${v%%.cpython*}
      case " $VARIANTS " in *" $v "*) ;; *) rm -f "$m" ;; esac
@@ -107,7 +119,7 @@ mkdir -p "$STAGE/build/plugins" "$STAGE/build/bin" "$STAGE/build/lib"
 cp "$BUILD/plugins/nanovdbvolume.so" "$BUILD/plugins/volpathlocal.so" \
    "$BUILD/plugins/emissiveheterogeneous.so" "$STAGE/build/plugins/"
 bins=(test_translation test_sampler test_hdda test_majorant_walk test_value_types test_io nvdb_make_test_grid
-      nvdb_make_stability_grid nvdb_big_grid vdb2nvdb)
+      nvdb_make_stability_grid nvdb_big_grid vdb2nvdb nanovdb-vdb-reader)
 for b in "${bins[@]}"; do
   [ -x "$BUILD/bin/$b" ] && cp "$BUILD/bin/$b" "$STAGE/build/bin/"
 done
@@ -132,7 +144,7 @@ tar -C "$STAGE" -cf - build | "${XZ[@]}" > "$OUT/build.tar.xz"
 
 # ---- 3. The sources the suite runs from: the working tree as it is (tracked
 # files and new ones that git does not ignore)
-git ls-files -z --cached --others --exclude-standard -- tests bench scenes scripts CMakeLists.txt |
+git ls-files -z --cached --others --exclude-standard -- tests bench scenes scripts python CMakeLists.txt |
   grep -zv '^bench/results/' |
   tar --null -T - -cf - | "${XZ[@]}" > "$OUT/source.tar.xz"
 cp scripts/gpu_kit_run.sh "$OUT/run.sh"

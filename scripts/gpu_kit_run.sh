@@ -4,28 +4,36 @@
 #   1. the doctest suites (test_translation: the translation against
 #      PNanoVDB read for read on scalar, LLVM and CUDA; test_io: the loader),
 #   2. the pytest suite, its variant-parametrized tests on the CUDA variants
-#      (NVDB_TEST_VARIANTS, default cuda_ad_rgb,cuda_ad_mono,cuda_ad_spectral;
+#      (NVDB_TEST_VARIANTS, default cuda_ad_rgb,cuda_ad_spectral;
 #      the GPU memory tests of tests/test_cuda.py; the >4 GiB grid),
 #   3. the benchmarks: bench/run.py --gpu (nanovdbvolume vs gridvolume on
 #      cuda_ad_rgb, and volpathlocal), bench/filters.py (every filter with
 #      volpath and volpathlocal against volpath + gridvolume's hardware
-#      trilinear, error at equal time: issue 19's CUDA targets) and
+#      trilinear, error at equal time: issue 19's CUDA targets),
 #      bench/huge_sparse.py (a grid whose dense form does not fit on the GPU),
+#      bench/emission.py (fire: emissiveheterogeneous against the same
+#      medium without emission) and bench/optimize.py (prbvolpath on the
+#      shared smoke through gridvolume and nanovdbvolume, trilinear and
+#      stochastic_trilinear),
 # and writes logs and results to --out. Needs: Python 3 with numpy and pytest
 # (the version the kit was packed for), an NVIDIA driver.
 #
 # Usage: bash gpu-kit/run.sh [--out DIR] [--home DIR]
-#                            [--steps "doctest pytest bench filters huge"]
+#                            [--steps "doctest pytest bench filters huge emission optimize"]
+#                            [--limits "pytest=180 bench=100 ..."]
 #                            [--bench-args "..."] [--filters-args "..."] [--huge-args "..."]
+#                            [--emission-args "..."] [--optimize-args "..."]
 #                            [-- PYTEST ARGS...]
-# Where a device call is time-limited, run one step per call (--steps bench,
-# --steps filters, ...).
+# --limits gives steps a wall-clock limit in seconds (GNU timeout: the step
+# and its child processes are stopped, its log kept, its exit code 124), so
+# that one device call of fixed length runs every step it names.
 set -uo pipefail
 KIT=$(cd "$(dirname "$0")" && pwd)
 OUT=$PWD/gpu-kit-results
 HOME_DIR=${NVDB_KIT_HOME:-/tmp/nvdb-gpu-kit}
-STEPS="doctest pytest bench filters huge"
+STEPS="doctest pytest bench filters huge emission optimize"
 BENCH_ARGS="--integrators volpath volpathlocal" FILTERS_ARGS="" HUGE_ARGS=""
+EMISSION_ARGS="" OPTIMIZE_ARGS="" LIMITS=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) OUT=$2; shift 2 ;;
@@ -34,6 +42,9 @@ while [ $# -gt 0 ]; do
     --bench-args) BENCH_ARGS=$2; shift 2 ;;
     --filters-args) FILTERS_ARGS=$2; shift 2 ;;
     --huge-args) HUGE_ARGS=$2; shift 2 ;;
+    --emission-args) EMISSION_ARGS=$2; shift 2 ;;
+    --optimize-args) OPTIMIZE_ARGS=$2; shift 2 ;;
+    --limits) LIMITS=$2; shift 2 ;;
     --) shift; break ;;
     *) echo "unknown argument: $1 (see the header of this script)" >&2; exit 2 ;;
   esac
@@ -54,21 +65,42 @@ if [ "$(cat "$HOME_DIR/.stamp" 2>/dev/null)" != "$stamp" ]; then
   echo "$stamp" > "$HOME_DIR/.stamp"
 fi
 H=$HOME_DIR
-export PYTHONPATH="$H/python${PYTHONPATH:+:$PYTHONPATH}"
+export PYTHONPATH="$H/python:$H/src/python${PYTHONPATH:+:$PYTHONPATH}"
 export LD_LIBRARY_PATH="$H/build/lib:$H/python/drjit:$H/python/mitsuba${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 export NVDB_BUILD_DIR="$H/build"
 export NVDB_SHARED_DATA="$H/build/shared_data"
-export NVDB_TEST_VARIANTS=${NVDB_TEST_VARIANTS:-cuda_ad_rgb,cuda_ad_mono,cuda_ad_spectral}
+export NVDB_TEST_VARIANTS=${NVDB_TEST_VARIANTS:-cuda_ad_rgb,cuda_ad_spectral}
+# each pytest failure's report as it happens (tests/conftest.py): a step
+# stopped at its --limits prints no failure section of its own
+export NVDB_FAILURE_LOG="$OUT/pytest_failures.log"
 export PYTHONUNBUFFERED=1
 NVDB_KIT_COMMIT="$(sed -n 's/^commit: //p' "$KIT/MANIFEST.txt") (GPU kit)"
 export NVDB_KIT_COMMIT
 
 declare -A RC
+limit_of() {  # the --limits entry of a step (0: none)
+  local kv
+  for kv in $LIMITS; do [ "${kv%%=*}" = "$1" ] && { echo "${kv#*=}"; return; }; done
+  echo 0
+}
 step() {  # step NAME COMMAND...: runs it, logs to $OUT/NAME.log, records its exit code
   local name=$1; shift
-  echo "== $name: $*"
+  local limit; limit=$(limit_of "$name")
+  local note=""; [ "$limit" = 0 ] || note=" (limit $limit s)"
+  echo "== $name: $*$note"
   local t0=$SECONDS
-  "$@" > "$OUT/$name.log" 2>&1
+  if [ "$limit" != 0 ]; then
+    # timeout runs programs, not shell functions: a function step runs in a
+    # child bash that is given it (export -f) and the variables it reads
+    if declare -F "$1" > /dev/null; then
+      export -f "$1"; export H OUT PYTHON OPTIMIZE_ARGS
+      timeout --kill-after=10 "$limit" bash -c '"$@"' _ "$@" > "$OUT/$name.log" 2>&1
+    else
+      timeout --kill-after=10 "$limit" "$@" > "$OUT/$name.log" 2>&1
+    fi
+  else
+    "$@" > "$OUT/$name.log" 2>&1
+  fi
   RC[$name]=$?
   tail -n 25 "$OUT/$name.log"
   echo "== $name: exit ${RC[$name]} ($((SECONDS - t0)) s)"
@@ -98,8 +130,12 @@ if want doctest; then
   step doctest_value_types "$H/build/bin/test_value_types"
 fi
 if want pytest; then
-  step pytest "$PYTHON" -m pytest tests -p no:cacheprovider -rs --durations=15 \
-       --junitxml="$OUT/pytest.xml" "${PYTEST_ARGS[@]}"
+  # the GPU's own tests first (memory on the device, the >4 GiB grid): the
+  # suite's order puts a file it has no CPU timing for last
+  step pytest_cuda "$PYTHON" -m pytest tests/test_cuda.py -p no:cacheprovider -rs \
+       --junitxml="$OUT/pytest_cuda.xml"
+  step pytest "$PYTHON" -m pytest tests --ignore=tests/test_cuda.py -p no:cacheprovider -rs \
+       --durations=15 --junitxml="$OUT/pytest.xml" "${PYTEST_ARGS[@]}"
 fi
 if want bench; then
   # shellcheck disable=SC2086
@@ -119,6 +155,33 @@ if want huge; then
   # shellcheck disable=SC2086
   step huge_sparse "$PYTHON" bench/huge_sparse.py --build "$H/build" --data "$H/bench-data" \
        --out "$OUT/bench" $HUGE_ARGS
+fi
+
+if want emission; then
+  # shellcheck disable=SC2086
+  step emission "$PYTHON" bench/emission.py --cases fireball --variants cuda_ad_rgb \
+       --ref-variant cuda_ad_rgb --build "$H/build" --data "$H/bench-data/emission" \
+       --out "$OUT/bench/emission.md" $EMISSION_ARGS
+fi
+if want optimize; then
+  optimize() {  # prbvolpath on the shared smoke: gridvolume, nanovdbvolume x 2 filters
+    local smoke="$NVDB_SHARED_DATA/openvdb_smoke1_fog.vdb" d="$H/bench-data/optimize"
+    [ -f "$smoke" ] || { echo "no $smoke: the kit was packed without ../shared/data"; return 1; }
+    mkdir -p "$d"
+    [ -f "$d/smoke.vol" ] || "$H/build/bin/vdb2nvdb" "$smoke" "$d/smoke.nvdb" --dense "$d/smoke.vol" || return 1
+    local rc=0 o="$OUT/bench/optimize"
+    # shellcheck disable=SC2086
+    "$PYTHON" bench/optimize.py --variant cuda_ad_rgb --target "$d/smoke.vol" --plugin gridvolume \
+        --reference "$d/smoke.vol" --out "$o" $OPTIMIZE_ARGS || rc=1
+    for f in trilinear stochastic_trilinear; do
+      # shellcheck disable=SC2086
+      "$PYTHON" bench/optimize.py --variant cuda_ad_rgb --target "$d/smoke.nvdb" \
+          --plugin nanovdbvolume --reference "$d/smoke.vol" --filter $f --out "$o" \
+          $OPTIMIZE_ARGS || rc=1
+    done
+    return $rc
+  }
+  step optimize optimize
 fi
 
 echo "== summary" | tee "$OUT/summary.txt"

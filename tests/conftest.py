@@ -125,6 +125,19 @@ FILE_SECONDS = {
 }
 
 
+def pytest_runtest_logreport(report):
+    """NVDB_FAILURE_LOG=FILE: each failure's report appended to FILE as it
+    happens, in the process that prints the results (with pytest-xdist, the
+    controller). A run stopped at a time limit (the GPU kit's device calls)
+    prints no failure section, so without this only the failures' names
+    would be known."""
+    path = os.environ.get("NVDB_FAILURE_LOG")
+    if not path or not report.failed or os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    with open(path, "a") as f:
+        f.write(f"==== {report.nodeid} ({report.when})\n{report.longreprtext}\n\n")
+
+
 def pytest_collection_modifyitems(session, config, items):
     # (stable: each file's tests stay together and in their order)
     items.sort(key=lambda item: (-FILE_SECONDS.get(item.path.name, 0), item.path.name))
