@@ -146,21 +146,31 @@ def _run(cmd, log):
     return r.stdout
 
 
-def generated_case(name, data_dir, build, log=sys.stdout):
-    gen, desc = GENERATED[name]
-    base = os.path.join(data_dir, name)
+def generate(gen, base, build, dense=True, log=sys.stdout):
+    """`vdb2nvdb generate GEN` into BASE.vdb and BASE.nvdb (and the dense
+    BASE.vol of its first grid), cached: made again when the command
+    changes. Returns BASE.nvdb."""
+    data_dir = os.path.dirname(base)
     nvdb, vol, vdb, stamp = base + ".nvdb", base + ".vol", base + ".vdb", base + ".stamp"
-    cmd = [vdb2nvdb(build), "generate", gen, vdb, nvdb, "--dense", vol, "--stats"]
+    cmd = [vdb2nvdb(build), "generate", gen, vdb, nvdb] + (["--dense", vol] if dense else [])
+    cmd.append("--stats")
     key = " ".join([gen] + cmd[3:]).replace(data_dir, "")
-    if not (os.path.exists(nvdb) and os.path.exists(vol) and os.path.exists(stamp)
-            and open(stamp).read() == key):
+    if not (os.path.exists(nvdb) and (not dense or os.path.exists(vol))
+            and os.path.exists(stamp) and open(stamp).read() == key):
         os.makedirs(data_dir, exist_ok=True)
         out = _run(cmd, log)
         with open(base + ".stats.txt", "w") as f:
             f.write(out)
         with open(stamp, "w") as f:
             f.write(key)
-    return Case(name, nvdb, vol, "", "generated", desc)
+    return nvdb
+
+
+def generated_case(name, data_dir, build, log=sys.stdout):
+    gen, desc = GENERATED[name]
+    base = os.path.join(data_dir, name)
+    nvdb = generate(gen, base, build, log=log)
+    return Case(name, nvdb, base + ".vol", "", "generated", desc)
 
 
 def _user_base(path, grid, data_dir):

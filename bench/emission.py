@@ -10,12 +10,14 @@ lights and a dim sky.
     python3 bench/emission.py --cases fireball --variants llvm_ad_rgb --out /tmp/e/emission.md
 
 Cases:
-  fireball   generated here (seeded numpy, --n^3 voxels, default 128): a
-             turbulent ball of smoke, empty outside (those voxels are left
-             out of the sparse grid), with a temperature grid hot in the core
-             (2800 K) that cools outwards and falls below the 100 K cutoff
-             before the rim (the outer soot shell does not glow); passed as
-             `data` tensors (cached as .npz in --data).
+  fireball   `vdb2nvdb generate fireball_<--n>` (default 128; the
+             generator's case, tools/testdata/generate_cases.cpp): a
+             turbulent ball of smoke, empty outside (those voxels are not in
+             the sparse grids), with a temperature grid (kK) hot in the core
+             (2800 K) that cools outwards to 0 before the rim (the outer
+             soot shell does not glow); both grids through the file, placed
+             by its transform (voxel size 1/n: the unit cube). Cached in
+             --data.
   usd_heat   ../shared/data/usd_density_heat_fog.vdb (OpenUSD test data:
              `density` and `heat` fog grids, different active boxes),
              converted by BUILD/bin/vdb2nvdb (which keeps every float grid)
@@ -64,6 +66,7 @@ import argparse
 import datetime
 import hashlib
 import inspect
+import io
 import json
 import math
 import os
@@ -79,6 +82,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
+import cases  # noqa: E402
 import harness  # noqa: E402
 
 SHARED_USD = os.path.join(ROOT, "..", "shared", "data", "usd_density_heat_fog.vdb")
@@ -109,8 +113,6 @@ FIRE = {
     "fireball": dict(temperature_scale=1000.0, emission_scale=0.05),
     "usd_heat": dict(temperature_scale=3700.0, emission_scale=0.05),
 }
-FIREBALL_SEED = 21  # issue 21
-FIREBALL_CORE_K = 2800.0
 
 
 def log(msg):
@@ -118,56 +120,7 @@ def log(msg):
 
 
 # ---------------------------------------------------------------------------
-# The generated fireball (numpy only)
-
-def value_noise(rng, n, cells):
-    """A smooth random field on an n^3 grid (axes z, y, x): Gaussian values on
-    a (cells + 1)^3 lattice, interpolated with smoothstep weights, one axis
-    at a time."""
-    g = rng.standard_normal((cells + 1,) * 3)
-    x = (np.arange(n) + 0.5) / n * cells
-    i0 = np.minimum(np.floor(x).astype(int), cells - 1)
-    f = x - i0
-    f = f * f * (3 - 2 * f)
-    g = g[i0] * (1 - f)[:, None, None] + g[i0 + 1] * f[:, None, None]
-    g = g[:, i0] * (1 - f)[None, :, None] + g[:, i0 + 1] * f[None, :, None]
-    g = g[:, :, i0] * (1 - f) + g[:, :, i0 + 1] * f
-    return g
-
-
-def fbm(rng, n, base=3, octaves=4):
-    """Fractal noise: octaves of value noise, each twice as fine and half as
-    strong; normalized to a standard deviation of 1."""
-    v = sum(0.5 ** o * value_noise(rng, n, base * 2 ** o) for o in range(octaves))
-    return v / v.std()
-
-
-def fireball_grids(n, seed=FIREBALL_SEED):
-    """(density, temperature in kK), float32 arrays (z, y, x) of n^3 voxels.
-
-    A ball of radius 0.34 (of the box) around (0.5, 0.47, 0.5), its surface
-    pushed in and out by fractal noise (+-30 %), with a soft edge of 0.06;
-    the density inside is modulated by a second noise (turbulent smoke,
-    0.1..1). The temperature falls from 2800 K at the centre as
-    sqrt(1 - (r / 0.85 R)^2) to 0 at 0.85 of the local radius R (a third
-    noise varies it by +-15 %), so the rim is below the 100 K cutoff: a
-    glowing core in a dark shell. Exactly 0
-    outside the ball (both grids), so the sparse grid holds the ball's
-    leaves only."""
-    rng = np.random.default_rng(seed)
-    c = (np.arange(n) + 0.5) / n
-    z, y, x = np.meshgrid(c, c, c, indexing="ij")
-    r = np.sqrt((x - 0.5) ** 2 + (y - 0.47) ** 2 + (z - 0.5) ** 2)
-    radius = 0.34 * (1.0 + 0.3 * np.tanh(fbm(rng, n, base=2, octaves=3) / 1.5))
-    edge = np.clip((radius - r) / 0.06, 0.0, 1.0)
-    turb = np.clip(0.55 + 0.3 * fbm(rng, n, base=4, octaves=4), 0.1, 1.0)
-    density = (edge * turb).astype(np.float32)
-    heat = np.sqrt(np.clip(1.0 - (r / (0.85 * radius)) ** 2, 0.0, 1.0))
-    heat *= np.clip(1.0 + 0.15 * fbm(rng, n, base=3, octaves=3), 0.5, 1.5)
-    temperature = (FIREBALL_CORE_K / 1000.0 * np.minimum(heat, 1.0)).astype(np.float32)
-    temperature[density == 0] = 0.0
-    return density, temperature
-
+# The cases' files
 
 def source_key(*objs):
     """A short hash of the code of functions and of values: cached grids and
@@ -179,15 +132,9 @@ def source_key(*objs):
     return h.hexdigest()[:8]
 
 
-def fireball_file(data_dir, n):
-    key = source_key(fireball_grids, value_noise, fbm, FIREBALL_CORE_K)
-    path = os.path.join(data_dir, f"fireball_{n}_seed{FIREBALL_SEED}_{key}.npz")
-    if not os.path.exists(path):
-        d, t = fireball_grids(n)
-        os.makedirs(data_dir, exist_ok=True)
-        np.savez(path + ".tmp.npz", density=d, temperature=t)
-        os.replace(path + ".tmp.npz", path)
-    return path
+def fireball_file(data_dir, build, n):
+    return cases.generate(f"fireball_{n}", os.path.join(data_dir, f"fireball_{n}"), build,
+                          dense=False, log=io.StringIO())
 
 
 def usd_file(data_dir, build):
@@ -207,10 +154,9 @@ def usd_file(data_dir, build):
 def volumes(mi, case):
     """(sigma_t, temperature) volume dicts of a case, placed in the unit cube."""
     if case["name"] == "fireball":
-        with np.load(case["file"]) as z:
-            d, t = z["density"], z["temperature"]
-        return ({"type": "nanovdbvolume", "data": mi.TensorXf(d)},
-                {"type": "nanovdbvolume", "data": mi.TensorXf(t)})
+        # the generator's placement: voxel size 1/n, the unit cube
+        return tuple({"type": "nanovdbvolume", "filename": case["file"], "grid": g,
+                      "use_grid_transform": True} for g in ("density", "temperature"))
     # usd_heat: the grids' own world space (they line up), z up -> y up, the
     # density's world box scaled into the unit cube (its long axis 1), centred
     T = mi.ScalarTransform4f
@@ -528,7 +474,7 @@ def main():
     case_list = []
     for name in a.cases:
         if name == "fireball":
-            case_list.append({"name": name, "file": fireball_file(a.data, a.n)})
+            case_list.append({"name": name, "file": fireball_file(a.data, a.build, a.n)})
         elif not os.path.exists(SHARED_USD):
             msg = f"usd_heat skipped: {os.path.normpath(SHARED_USD)} not found (../shared/data)"
             log("== " + msg)
@@ -687,7 +633,7 @@ def write_report(a, case_list, refs, measured, rows, errors, notes, started, ela
         n = c["name"]
         d = next(iter(measured.values()))["cases"][n]["density"]
         fire = FIRE[n]
-        desc = (f"generated {a.n}³ (seed {FIREBALL_SEED}), core {FIREBALL_CORE_K:.0f} K"
+        desc = (f"`vdb2nvdb generate fireball_{a.n}`, core 2800 K"
                 if n == "fireball" else "usd_density_heat_fog.vdb, `heat` as temperature")
         L.append(f"| {n} | {desc}; {'×'.join(map(str, d['index_dims']))} active box, "
                  f"{d['grid_bytes'] / 2**20:.2f} MiB | {d['local_majorant_ratio']:.3f} | "

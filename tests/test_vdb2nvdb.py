@@ -441,6 +441,35 @@ def test14_generator_is_deterministic(gen, tmp_path):
     assert "random_300" in p.stderr and not (tmp_path / "n.vdb").exists()
 
 
+def test14b_fireball_case(tmp_path):
+    # fireball_<N>: density and temperature with the same active voxels (so
+    # the same dense box), temperature 0 where there is no smoke, at most 2.8
+    # kK and hot in the core, density in (0, 1]; in the unit cube
+    vdb = tmp_path / "f.vdb"
+    run("generate", "fireball_32", vdb, "--quiet")
+    grids = {}
+    for g in ("density", "temperature"):
+        p = run(vdb, tmp_path / f"{g}.nvdb", "--grid", g, "--dense", tmp_path / f"{g}.vol",
+                "--stats")
+        assert "voxel size (0.03125, 0.03125, 0.03125)" in p.stdout, p.stdout
+        grids[g] = read_vol(tmp_path / f"{g}.vol")
+    (res_d, box_d, d), (res_t, box_t, t) = grids["density"], grids["temperature"]
+    assert res_d == res_t and box_d == box_t
+    d, t = np.array(d).reshape(res_d[::-1]), np.array(t).reshape(res_d[::-1])
+    assert 0.0 < d.max() <= 1.0 and d.min() >= 0.0
+    assert np.all(t[d == 0] == 0) and 0.0 <= t.min() and t.max() <= 2.8 + 1e-6
+    assert 0.25 < (t > 0.1).sum() / (d > 0).sum() < 0.95   # a core that glows, a cold shell
+    assert all(0.0 <= v <= 1.0 for v in box_d)
+    # the heat centred on the ball's centre (0.5, 0.47, 0.5); the rim cold:
+    # the shell's outer voxels (density only) hold no heat
+    kk, jj, ii = np.indices(t.shape)
+    xyz = np.array(box_d[:3]) + (np.stack([ii, jj, kk], -1) + 0.5) / 32
+    centroid = (xyz * t[..., None]).sum((0, 1, 2)) / t.sum()
+    assert np.linalg.norm(centroid - [0.5, 0.47, 0.5]) < 0.05, centroid
+    r = np.linalg.norm(xyz - [0.5, 0.47, 0.5], axis=-1)
+    assert t[(d > 0) & (r > 0.4)].max(initial=0.0) == 0.0
+
+
 # ---------------------------------------------------------------------------
 #  Verification
 # ---------------------------------------------------------------------------

@@ -200,6 +200,79 @@ openvdb::GridPtrVec multi() {
     return grids;
 }
 
+/// A fireball in the index box [0, n)^3, voxel size 1/n (the unit cube):
+/// two fog grids with the same active voxels, "density" and "temperature"
+/// (kK: times 1000 is kelvin, emissiveheterogeneous's temperature_scale).
+/// A ball of radius 0.34 around (0.5, 0.47, 0.5), its surface pushed in and
+/// out by fractal noise (up to +-30 %), with a soft edge of 0.06; the
+/// density inside modulated by a second noise (turbulent smoke, 0.1..1).
+/// The temperature falls from 2.8 (2800 K) at the centre as
+/// sqrt(1 - (r / 0.85 R)^2) to 0 at 0.85 of the local radius R, varied by
+/// +-15 % by a third noise: a glowing core in a dark shell (0 is below
+/// every cutoff). Voxels outside the ball are inactive in both grids, so the
+/// sparse grids hold the ball's leaves only.
+openvdb::GridPtrVec fireball(int n) {
+    const double inv = 1.0 / double(n);
+    // Each noise centred and scaled to about unit spread (quintic_fbm's
+    // values lie in [0, 1), around 0.5)
+    auto centred = [](double v) { return (v - 0.5) * 8.0; };
+    auto radius_at = [&](double x, double y, double z) {
+        return 0.34 * (1.0 + 0.3 * std::tanh(centred(quintic_fbm(2 * x, 2 * y, 2 * z, kSeed + 21))
+                                             / 1.5));
+    };
+    auto at = [&](const Coord &c, double &r, double &radius) {
+        const double x = (c.x() + 0.5) * inv, y = (c.y() + 0.5) * inv, z = (c.z() + 0.5) * inv;
+        r = std::sqrt((x - 0.5) * (x - 0.5) + (y - 0.47) * (y - 0.47) + (z - 0.5) * (z - 0.5));
+        radius = radius_at(x, y, z);
+    };
+    auto density = FloatGrid::create(0.f);
+    // the largest radius, 0.34 x 1.3, and the edge: a box of 0.45 around the centre
+    const Coord lo(int(std::floor(0.05 * n)), int(std::floor(0.02 * n)), int(std::floor(0.05 * n))),
+                hi(int(std::ceil(0.95 * n)) - 1, int(std::ceil(0.92 * n)) - 1,
+                   int(std::ceil(0.95 * n)) - 1);
+    density->tree().denseFill(CoordBBox(lo, hi), 1.f, /*active=*/true);
+    fill_by_function(*density, [&](const Coord &c) {
+        double r, radius;
+        at(c, r, radius);
+        const double edge = std::clamp((radius - r) / 0.06, 0.0, 1.0);
+        if (edge <= 0.0)
+            return 0.f;
+        const double x = (c.x() + 0.5) * inv, y = (c.y() + 0.5) * inv, z = (c.z() + 0.5) * inv;
+        const double turb =
+            std::clamp(0.55 + 0.3 * centred(quintic_fbm(4 * x, 4 * y, 4 * z, kSeed + 22)), 0.1, 1.0);
+        return float(edge * turb);
+    });
+    openvdb::tools::pruneInactive(density->tree());
+    // The temperature on the density's active voxels (0 where cold: active,
+    // so that both grids have the same active box and line up by default)
+    auto temperature = FloatGrid::create(0.f);
+    temperature->tree().topologyUnion(density->tree());
+    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(temperature->tree());
+    leaves.foreach([&](openvdb::FloatTree::LeafNodeType &leaf, size_t) {
+        for (auto it = leaf.beginValueOn(); it; ++it) {
+            const Coord c = it.getCoord();
+            double r, radius;
+            at(c, r, radius);
+            const double x = (c.x() + 0.5) * inv, y = (c.y() + 0.5) * inv,
+                         z = (c.z() + 0.5) * inv;
+            double heat = std::sqrt(std::clamp(1.0 - (r / (0.85 * radius)) * (r / (0.85 * radius)),
+                                               0.0, 1.0));
+            heat *= std::clamp(1.0 + 0.15 * centred(quintic_fbm(3 * x, 3 * y, 3 * z, kSeed + 23)),
+                               0.5, 1.5);
+            it.setValue(float(2.8 * std::min(heat, 1.0)));
+        }
+    });
+    openvdb::GridPtrVec grids;
+    for (auto [grid, name] : { std::pair{ density, "density" },
+                               std::pair{ temperature, "temperature" } }) {
+        grid->setTransform(openvdb::math::Transform::createLinearTransform(inv));
+        grid->setName(name);
+        grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+        grids.push_back(grid);
+    }
+    return grids;
+}
+
 bool parse_sized(const std::string &name, const std::string &prefix, int &n) {
     if (name.rfind(prefix, 0) != 0)
         return false;
@@ -233,6 +306,9 @@ std::vector<std::pair<std::string, std::string>> generate_cases() {
         { "drifting_cloud_<F>", "frame F (0..1000) of a cloud that drifts and grows: index box "
                                 "(24 + 4F)^3, voxel size 0.02, translated by F x (0.05, 0.02, "
                                 "-0.03)" },
+        { "fireball_<N>", "a fireball in an N^3 index box (voxel size 1/N): \"density\" "
+                          "(turbulent smoke in a frayed ball) and \"temperature\" (kK, 2.8 at "
+                          "the core, 0 in the outer shell), the same active voxels" },
         { "empty", "a float grid \"density\" (fog) with no active voxels (an empty frame)" },
         { "multi", "five grids in one file: density (fog), vel (vec3s), ls_sphere (level set, "
                    "background 0.15), flags (int32), temperature (float, class unknown)" },
@@ -251,6 +327,8 @@ openvdb::GridPtrVec make_case(const std::string &name) {
         return { sphere_ls(1.f, 1.f / float(n)) };
     if (parse_sized(name, "cloudfield_", n))
         return { cloudfield(n) };
+    if (parse_sized(name, "fireball_", n))
+        return fireball(n);
     if (parse_sized(name, "cloud_", n))
         return { cloud(std::max(1, n / 2)) };
     if (name == "cloud")
