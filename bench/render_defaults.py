@@ -14,6 +14,7 @@ before: the package of d32da2e (--package, see --help); mean8: a run with
 scene.default_scale made 8 / (the density's real mean x the box's mean
 extent), the rule not taken (the report says why).
 
+Each file is measured in a child process of its own (bench/harness.py).
 What the command picks: render_file() itself runs (python/nanovdb_mitsuba/
 render.py, no flags) up to its first mi.render() call, which stops it;
 framed_scene's result (scale, camera, the loaded volume) and the mean
@@ -257,18 +258,32 @@ def measure(mi, path, args):
     return row
 
 
-def run(args):
+def measure_child(spec):
+    """One file in a child process of its own (bench/harness.py): the
+    package measured (--package) first on the path, then Mitsuba and its
+    plugins as that package sets them up."""
+    sys.path.insert(0, spec["package"])
     import mitsuba as mi
-    mi.set_variant(args.variant)
+    mi.set_variant(spec["variant"])
     import nanovdb_mitsuba
     nanovdb_mitsuba.setup(mi)
+    t0 = time.perf_counter()
+    row = measure(mi, spec["path"], argparse.Namespace(**spec["args"]))
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+def run(args):
+    import harness
     paths = sorted(os.path.join(args.data, f) for f in os.listdir(args.data)
                    if f.endswith((".vdb", ".nvdb")))
     rows = []
+    keys = ("res", "steps", "max_points", "images", "label")
     for p in paths:
-        t0 = time.perf_counter()
-        row = measure(mi, p, args)
-        row["seconds"] = time.perf_counter() - t0
+        row = harness.run_child("render_defaults:measure_child",
+                                {"path": p, "variant": args.variant,
+                                 "package": os.path.abspath(args.package),
+                                 "args": {k: getattr(args, k) for k in keys}})
         print(json.dumps(row), flush=True)
         rows.append(row)
     with open(args.json, "w") as f:
@@ -379,7 +394,7 @@ def main():
     ap.add_argument("--after", default=None)
     ap.add_argument("--mean8", default=None)
     args = ap.parse_args()
-    sys.path.insert(0, os.path.abspath(args.package))
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))   # (bench/: harness)
     if args.report_out:
         report(args)
     else:
