@@ -5,8 +5,8 @@ writes of it: load time and peak memory, per grid (issue 22).
         [FILE.vdb ...]          (default: every .vdb of ../shared/data, and a
                                  generated cloud_512 for a grid of some size)
 
-Each load runs in a fresh process (so that the peak resident memory,
-ru_maxrss, is that load's): Python, Mitsuba and the variant set up, then
+Each load runs in a fresh process (bench/harness.py; so that the peak
+resident memory, ru_maxrss, is that load's): Python, Mitsuba and the variant set up, then
 mi.load_dict of the volume, evaluated (the grid on the backend). The
 baseline is the same process without the load; "peak over baseline" is the
 difference. Times are the median of --repeat processes; the .vdb's own
@@ -25,54 +25,55 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 BUILD = Path(os.environ.get("NVDB_BUILD_DIR", ROOT / "build"))
 VDB2NVDB = BUILD / "bin" / "vdb2nvdb"
+sys.path.insert(0, str(ROOT / "bench"))
+sys.path.insert(0, str(ROOT / "python"))
+import harness  # noqa: E402
+from nanovdb_mitsuba import files  # noqa: E402
 
-CHILD = r"""
-import json, resource, sys, time
-sys.path.insert(0, {python!r})
-import mitsuba as mi
-mi.set_variant({variant!r})
-import nanovdb_mitsuba
-nanovdb_mitsuba.setup(mi)
-import drjit as dr
-out = {{"baseline_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}}
-if {path!r}:
-    t0 = time.perf_counter()
-    vol = mi.load_dict({{"type": "nanovdbvolume", "filename": {path!r}, "grid": {grid!r}}})
-    dr.eval(); dr.sync_thread()
-    out["seconds"] = time.perf_counter() - t0
-    p = mi.traverse(vol)
-    out["grid_bytes"] = float(p["grid_bytes"])
-    out["convert_seconds"] = float(p["vdb_convert_seconds"]) if p["vdb_imported"] else 0.0
-    # (since issue 32 the .vdb is read by nanovdb-vdb-reader, a process of
-    # its own: its time, start to reply, and its peak)
-    out["reader_seconds"] = float(p["vdb_reader_seconds"]) if "vdb_reader_seconds" in p else 0.0
-    out["reader_peak_mb"] = float(p["vdb_reader_peak_mb"]) if "vdb_reader_peak_mb" in p else 0.0
-out["peak_kb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps(out))
-"""
+def load_child(spec):
+    """In a fresh process (bench/harness.py): Python, Mitsuba and the variant
+    set up, then, given a path, mi.load_dict of the volume, evaluated (the
+    grid on the backend); the process's peak resident memory at the end."""
+    import resource
+    import time
+    sys.path.insert(0, str(ROOT / "python"))
+    import mitsuba as mi
+    mi.set_variant(spec["variant"])
+    import nanovdb_mitsuba
+    nanovdb_mitsuba.setup(mi)
+    import drjit as dr
+    out = {"baseline_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}
+    if spec["path"]:
+        t0 = time.perf_counter()
+        vol = mi.load_dict({"type": "nanovdbvolume", "filename": spec["path"],
+                            "grid": spec["grid"]})
+        dr.eval()
+        dr.sync_thread()
+        out["seconds"] = time.perf_counter() - t0
+        p = mi.traverse(vol)
+        out["grid_bytes"] = float(p["grid_bytes"])
+        out["convert_seconds"] = float(p["vdb_convert_seconds"]) if p["vdb_imported"] else 0.0
+        # (since issue 32 the .vdb is read by nanovdb-vdb-reader, a process
+        # of its own: its time, start to reply, and its peak)
+        out["reader_seconds"] = float(p["vdb_reader_seconds"]) if "vdb_reader_seconds" in p else 0.0
+        out["reader_peak_mb"] = float(p["vdb_reader_peak_mb"]) if "vdb_reader_peak_mb" in p else 0.0
+    out["peak_kb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return out
 
 
 def child(variant, path="", grid=""):
-    code = CHILD.format(python=str(ROOT / "python"), variant=variant, path=str(path), grid=grid)
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       env={**os.environ, "NVDB_BUILD_DIR": str(BUILD)})
-    if r.returncode != 0:
-        raise RuntimeError(r.stderr.strip().splitlines()[-1] if r.stderr else "failed")
-    # (Mitsuba's log goes to stdout too: the result is the last JSON line)
-    lines = [l[l.index("{"):] for l in r.stdout.splitlines() if '{"baseline_kb"' in l]
-    if not lines:
-        raise RuntimeError(r.stdout.strip()[-300:])
-    return json.loads(lines[-1])
+    try:
+        return harness.run_child("vdb_load:load_child",
+                                 {"variant": variant, "path": str(path), "grid": grid})
+    except harness.ChildFailed as e:
+        lines = e.stderr.strip().splitlines()
+        raise RuntimeError(lines[-1] if lines else "failed") from None
 
 
 def grids_of(vdb):
-    rows = []
-    for line in subprocess.run([str(VDB2NVDB), "--list", str(vdb)], capture_output=True,
-                               text=True).stdout.splitlines():
-        parts = line.split()
-        if len(parts) >= 3 and parts[0].isdigit() and parts[1].startswith('"'):
-            rows.append((parts[1].strip('"'), parts[2]))
-    return [(n, t) for n, t in rows if t in ("float", "vec3s")]
+    """(name, type) of the file's float and vec3s grids, from the plugin's
+    own listing (nanovdb_mitsuba.files: structured, not parsed from text)"""
+    return [(n, t) for n, t in files.grid_rows(vdb) if t in ("float", "vec3s")]
 
 
 def main():
@@ -82,6 +83,7 @@ def main():
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "vdb_load.md"))
     a = ap.parse_args()
+    os.environ["NVDB_BUILD_DIR"] = str(BUILD)   # (the children's plugins)
     tmp = Path(tempfile.mkdtemp(prefix="vdb_load_"))
     files = [Path(f) for f in a.files]
     if not files:
