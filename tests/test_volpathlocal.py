@@ -746,3 +746,29 @@ def test20_columns_stiff_shadow_rays_analytic(variants_rgb, tmp_path):
             if mi.is_spectral:  # (colour noise of the wavelength sampling)
                 tol += 5 * float(np.std(centre)) / math.sqrt(centre.size)
             assert abs(centre.mean() - expect) <= tol, (c, coarse, centre.mean(), expect, tol)
+
+
+@pytest.mark.parametrize("scale", [0.05, 0.3])
+def test21_ramp_along_the_ray_analytic(variants_rgb, tmp_path, scale):
+    # Issue 34's linear ramp, for the estimators that exist: 16 x 4 x 4
+    # voxels of value i along x (nearest: 0, 1, ..., 15), turned by the
+    # volume's to_world so that the grid's x runs along the rays (+z). Each
+    # ray crosses voxels 0..15, 1/16 of the box each: tau = scale x 120 / 16
+    # exactly. The density varies inside each of the two leaves (majorants
+    # 7 and 15), so ratio tracking weighs null collisions by different
+    # fractions along one segment, and delta tracking accepts with
+    # different probabilities. Every estimate is in [0, 1], so a pixel mean
+    # of mean m has variance at most m (1 - m) / samples; 5 standard errors.
+    nvdb, _, _ = make_stab(tmp_path, "ramp", "--min", 0, 0, 0, "--max", 15, 3, 3,
+                           "--fill", "ramp", dense=False)
+    T = mi.ScalarTransform4f
+    vol = load_nvdb(nvdb, filter_type="nearest",
+                    to_world=T().translate([1, 0, 0]) @ T().rotate([0, 1, 0], -90))
+    tau = scale * 120.0 / 16.0
+    size, spp = (16, 256) if dr.is_jit_v(mi.Float) else (8, 64)
+    for shadow, expect in [(False, math.exp(-tau)), (True, math.exp(-2.0 * tau))]:
+        img = transmittance_scene("volpathlocal", vol, scale=scale, size=size, spp=spp,
+                                  shadow=shadow)
+        assert np.all(np.isfinite(img)) and np.all(img >= 0) and np.all(img <= 1 + 1e-6)
+        assert_mean_close(img, spp, expect, math.sqrt(expect * (1 - expect)),
+                          f"shadow={shadow}")
