@@ -83,10 +83,14 @@ def voxel_segments(density, origin, direction, h):
     return out
 
 
-def block_segments(density, segs, block, blocks_max, blocks_mean, blocks_min, scale):
-    """The ray's walk: per block crossed, (length, majorant, mean, minimum,
-    [(start, length, sigma) of its voxels])"""
+def block_segments(density, segs, block, blocks_max, blocks_mean, blocks_min, scale,
+                   lookup=None):
+    """The ray's walk: per block crossed, (block, length, majorant, mean,
+    minimum, [(start, length, sigma) of its voxels], sigma(x) at offsets x
+    into the block). lookup(t) (t: distances along the ray): the filter's
+    density there; None: nearest (the voxel's)"""
     out = []
+    t0 = 0.0
     for ijk, length in segs:
         b = tuple(ijk // block)
         sigma = scale * density[tuple(ijk)]
@@ -95,15 +99,67 @@ def block_segments(density, segs, block, blocks_max, blocks_mean, blocks_min, sc
             out[-1][1] += length
         else:
             out.append([b, length, scale * blocks_max[b], scale * blocks_mean[b],
-                        scale * blocks_min[b], [(0.0, length, sigma)]])
+                        scale * blocks_min[b], [(0.0, length, sigma)], t0])
+        t0 += length
+    for e in out:
+        voxels, start = e[5], e[6]
+        e[6] = ((lambda x, v=voxels: sigma_at(v, x)) if lookup is None else
+                (lambda x, s0=start: scale * lookup(s0 + x)))
     return out
 
 
-def sigma_at(voxels, x):
-    """sigma at offsets x (array) inside a block's segment"""
-    starts = np.array([v[0] for v in voxels])
-    sig = np.array([v[2] for v in voxels])
-    return sig[np.searchsorted(starts, x, side="right") - 1]
+def stochastic_trilinear(density, origin, direction, h, rng):
+    """lookup(t) of the stochastic trilinear filter along a ray: one voxel
+    per lookup, picked with the trilinear weights (each axis: the upper
+    neighbour with the fractional part's probability); 0 outside"""
+    dims = np.array(density.shape)
+
+    def lookup(t):
+        q = (np.asarray(origin)[None, :] + np.asarray(t)[:, None] * direction[None, :]) / h - 0.5
+        base = np.floor(q)
+        ijk = (base + (rng.random(q.shape) < q - base)).astype(int)
+        inside = np.all((ijk >= 0) & (ijk < dims), axis=1)
+        v = np.zeros(len(ijk))
+        v[inside] = density[tuple(ijk[inside].T)]
+        return v
+    return lookup
+
+
+def trilinear_depth(density, origin, direction, h, length, scale, steps_per_voxel=8):
+    """The optical depth the stochastic trilinear filter has in expectation:
+    the trilinear density (0 outside) integrated by the midpoint rule"""
+    dims = np.array(density.shape)
+    n = max(1, int(math.ceil(length / h * steps_per_voxel)))
+    t = (np.arange(n) + 0.5) * (length / n)
+    q = (np.asarray(origin)[None, :] + t[:, None] * direction[None, :]) / h - 0.5
+    base = np.floor(q).astype(int)
+    f = q - base
+    acc = np.zeros(n)
+    for c in range(8):
+        o = np.array([c & 1, (c >> 1) & 1, (c >> 2) & 1])
+        ijk = base + o
+        wgt = np.prod(np.where(o == 1, f, 1 - f), axis=1)
+        inside = np.all((ijk >= 0) & (ijk < dims), axis=1)
+        v = np.zeros(n)
+        v[inside] = density[tuple(ijk[inside].T)]
+        acc += wgt * v
+    return scale * acc.sum() * (length / n)
+
+
+def block_bounds(density, block, reach):
+    """Per block: (max, mean, min) over the values a lookup in it can
+    return: its voxels, and `reach` voxels around them (0 beyond the
+    volume), as the walk's majorants take the filter's footprint"""
+    dims = np.array(density.shape)
+    nb = -(-dims // block)
+    pad = np.zeros(nb * block + 2 * reach)
+    pad[reach:reach + dims[0], reach:reach + dims[1], reach:reach + dims[2]] = density
+    w = np.lib.stride_tricks.sliding_window_view(pad, (block + 2 * reach,) * 3)
+    w = w[::block, ::block, ::block][:nb[0], :nb[1], :nb[2]]
+    inner = pad[reach:reach + nb[0] * block, reach:reach + nb[1] * block,
+                reach:reach + nb[2] * block]
+    inner = inner.reshape(nb[0], block, nb[1], block, nb[2], block).mean(axis=(1, 3, 5))
+    return w.max(axis=(3, 4, 5)), inner, w.min(axis=(3, 4, 5))
 
 
 def tracking(rng, segs, n, control):
@@ -112,7 +168,7 @@ def tracking(rng, segs, n, control):
     against the block majorant. Returns (estimates, lookups per estimate)."""
     w = np.ones(n)
     lookups = 0
-    for _, length, mu, mean, mn, voxels in segs:
+    for _, length, mu, mean, mn, _voxels, sigma_of in segs:
         c = 0.0 if control is None else (mean if control == "mean" else mn)
         # the residual's majorant per block (the node's, as a table would
         # hold it, not the ray's): the block's largest |sigma - c|
@@ -126,7 +182,7 @@ def tracking(rng, segs, n, control):
         for m in range(1, int(k.max(initial=0)) + 1):
             has = k >= m
             x = rng.random(int(has.sum())) * length
-            r = sigma_at(voxels, x) - c
+            r = sigma_of(x) - c
             w[has] *= 1.0 - r / mu_r
     return w, lookups / n
 
@@ -142,7 +198,7 @@ def flights(rng, segs, n, decomposed):
     lookups = np.zeros(n)
     alive = np.ones(n, bool)
     t0 = 0.0
-    for _, length, mu, mean, mn, voxels in segs:
+    for _, length, mu, mean, mn, _voxels, sigma_of in segs:
         if not alive.any():
             break
         idx = np.nonzero(alive)[0]
@@ -164,7 +220,7 @@ def flights(rng, segs, n, decomposed):
                 if not live.any():
                     continue
                 used[live] += 1
-                sig = sigma_at(voxels, x[live])
+                sig = sigma_of(x[live])
                 accept = rng.random(int(live.sum())) < (sig - c) / rate
                 sel = np.nonzero(live)[0][accept]
                 xr[sel] = x[sel]
@@ -184,6 +240,9 @@ def main():
     ap.add_argument("--rays", type=int, default=400)
     ap.add_argument("--samples", type=int, default=512)
     ap.add_argument("--block", type=int, default=8)
+    ap.add_argument("--filter", choices=["nearest", "stochastic_trilinear"], default="nearest",
+                    help="the lookups (stochastic_trilinear: one voxel per lookup, the bounds "
+                    "over each block and its 1-voxel rim)")
     ap.add_argument("--seed", type=int, default=34)
     ap.add_argument("--out", default=os.path.join(HERE, "results", "transmittance_estimators.md"))
     a = ap.parse_args()
@@ -198,13 +257,14 @@ def main():
     dims = np.array(density.shape)
     h = 1.0 / dims.max()                       # the long axis is 1
     B = a.block
-    nb = -(-dims // B)
-    pad = np.zeros(nb * B)
-    pad[:dims[0], :dims[1], :dims[2]] = density
-    blocks = pad.reshape(nb[0], B, nb[1], B, nb[2], B).transpose(0, 2, 4, 1, 3, 5)
-    blocks = blocks.reshape(*nb, -1)
-    bmax, bmean, bmin = blocks.max(-1), blocks.mean(-1), blocks.min(-1)
+    stochastic = a.filter == "stochastic_trilinear"
+    bmax, bmean, bmin = block_bounds(density, B, 1 if stochastic else 0)
     rng = np.random.default_rng(a.seed)
+
+    def walk(origin, d):
+        lookup = stochastic_trilinear(density, origin, d, h, rng) if stochastic else None
+        return block_segments(density, voxel_segments(density, origin, d, h), B,
+                              bmax, bmean, bmin, a.scale, lookup)
     sun = np.array([0.3, 1.0, 0.2])
     sun /= np.linalg.norm(sun)
     flat = density.ravel() / density.sum()
@@ -218,9 +278,10 @@ def main():
         i = rng.choice(flat.size, p=flat)
         ijk = np.array(np.unravel_index(i, density.shape))
         origin = (ijk + rng.random(3)) * h
-        segs = block_segments(density, voxel_segments(density, origin, sun, h), B,
-                              bmax, bmean, bmin, a.scale)
+        segs = walk(origin, sun)
         tau = sum(v[1] * v[2] for s in segs for v in s[5])
+        if stochastic:
+            tau = trilinear_depth(density, origin, sun, h, sum(s[1] for s in segs), a.scale)
         taus.append(tau)
         for name, control in estimators.items():
             w, lk = tracking(rng, segs, a.samples, control)
@@ -240,8 +301,7 @@ def main():
         origin = (ijk + rng.random(3)) * h
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
-        segs = block_segments(density, voxel_segments(density, origin, d, h), B,
-                              bmax, bmean, bmin, a.scale)
+        segs = walk(origin, d)
         for name in ff:
             dist, lk = flights(rng, segs, a.samples, name == "decomposition")
             ff[name].append(lk.mean())
@@ -257,7 +317,7 @@ def main():
         "# Transmittance estimators on the shadow rays of a real volume (bench/transmittance_estimators.py)",
         "",
         f"`python3 bench/transmittance_estimators.py --vol {os.path.basename(a.vol)} --scale {a.scale:g} "
-        f"--rays {a.rays} --samples {a.samples} --block {B}` ({seconds:.0f} s). "
+        f"--rays {a.rays} --samples {a.samples} --block {B} --filter {a.filter}` ({seconds:.0f} s). "
         f"Volume {dims[0]}×{dims[1]}×{dims[2]} voxels, blocks of {B}³ (the leaves); "
         f"{a.rays} shadow rays from density-weighted points towards the sun; their optical "
         f"depth: median {np.median(taus):.2f}, 90th percentile {np.percentile(taus, 90):.2f}, "
