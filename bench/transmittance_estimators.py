@@ -162,6 +162,13 @@ def block_bounds(density, block, reach):
     return w.max(axis=(3, 4, 5)), inner, w.min(axis=(3, 4, 5))
 
 
+def sigma_at(voxels, x):
+    """sigma at offsets x (array) inside a block's segment (nearest)"""
+    starts = np.array([v[0] for v in voxels])
+    sig = np.array([v[2] for v in voxels])
+    return sig[np.searchsorted(starts, x, side="right") - 1]
+
+
 def tracking(rng, segs, n, control):
     """n ratio-tracking estimates of the residual sigma - control against
     max |sigma - control| per block; control None: plain ratio tracking
