@@ -189,13 +189,16 @@ def split_grid(arg):
 
 
 def first_float_grid(vdb, build):
-    out = subprocess.run([vdb2nvdb(build), "--list", vdb], stdout=subprocess.PIPE,
-                         stderr=subprocess.STDOUT, text=True, check=True).stdout
-    for line in out.splitlines():
-        parts = line.split('"')
-        if len(parts) >= 3 and parts[2].split() and parts[2].split()[0] == "float":
-            return parts[1]
-    raise RuntimeError(f"{vdb}: no float grid:\n{out}")
+    """The first float grid of a file, from the listing of `build`'s grid
+    library (nanovdb_mitsuba.files: structured, not vdb2nvdb --list's text)"""
+    os.environ["NVDB_BUILD_DIR"] = os.path.abspath(build)  # (the library read; also the children's)
+    sys.path.insert(0, os.path.join(ROOT, "python"))
+    from nanovdb_mitsuba import files
+    rows = files.grid_rows(vdb)
+    for name, type_ in rows:
+        if type_ == "float":
+            return name
+    raise RuntimeError(f"{vdb}: no float grid (its grids: {rows})")
 
 
 def vdb_case(arg, data_dir, build, log=sys.stdout):
