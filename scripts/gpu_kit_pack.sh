@@ -6,7 +6,8 @@
 #   gpu-kit/python.tar.xz   mitsuba + drjit for the target Python (pip
 #                           wheels, unpacked; headers, stubs and unused
 #                           variant modules removed)
-#   gpu-kit/build.tar.xz    build/plugins/{nanovdbvolume,volpathlocal,emissiveheterogeneous}.so, the test and tool
+#   gpu-kit/build.tar.xz    build/plugins/{nanovdbvolume,volpathlocal,emissiveheterogeneous}.so,
+#                           build/lib/nanovdb_grid_list.so, the test and tool
 #                           binaries (doctest suites, grid generators,
 #                           vdb2nvdb, nanovdb-vdb-reader: the plugin reads
 #                           .vdb files through it), the shared libraries they need that a
@@ -75,7 +76,14 @@ trap 'rm -rf "$STAGE"' EXIT
 
 # ---- 1. Mitsuba and Dr.Jit for the target Python (cached: compressing takes a minute)
 tag=cp${PYVER/./}
-key=$(echo "$tag $MI_VERSION $DR_VERSION $VARIANTS" | sha1sum | cut -c1-12)
+# Mitsuba plugins that nothing in the suite or the benchmarks loads
+# (Gaussian splats, curves, SDFs, sky models, hair, principled and
+# conductor BSDFs, other integrators, emitters and sensors: 38 MB): the kit
+# travels beside the working tree, 64 MiB in all
+UNUSED_PLUGINS="ellipsoids ellipsoidsmesh bsplinecurve linearcurve sdfgrid sunsky timed_sunsky
+  hair measured_polarized principled principledthin pplastic ptracer cylinder direct
+  roughconductor aov distant thinlens projector conductor bumpmap"
+key=$(echo "$tag $MI_VERSION $DR_VERSION $VARIANTS $UNUSED_PLUGINS" | sha1sum | cut -c1-12)
 py_tar="$CACHE/python-$tag-$key.tar.xz"
 if [ ! -f "$py_tar" ]; then
   echo "== downloading mitsuba $MI_VERSION and drjit $DR_VERSION wheels for $tag"
@@ -96,11 +104,7 @@ if [ ! -f "$py_tar" ]; then
    rm -rf mitsuba/include drjit/include mitsuba/cmake drjit/cmake mitsuba/pkgconfig \
           mitsuba/mitsuba_stubs ./*.dist-info/RECORD &&
    find . -name '*.pyi' -delete &&
-   # Mitsuba plugins that nothing in the suite or the benchmarks loads
-   # (Gaussian splats, curves, SDFs, sky models, hair, principled BSDFs:
-   # 25 MB): the kit travels beside the working tree, 64 MiB in all
-   for p in ellipsoids ellipsoidsmesh bsplinecurve linearcurve sdfgrid sunsky timed_sunsky \
-            hair measured_polarized principled principledthin pplastic; do
+   for p in $UNUSED_PLUGINS; do
      rm -f mitsuba/plugins/$p.so
    done &&
    for m in mitsuba/scalar_*.cpython-*.so mitsuba/llvm_*.cpython-*.so mitsuba/cuda_*.cpython-*.so; do
@@ -123,11 +127,14 @@ bins=(test_translation test_sampler test_hdda test_majorant_walk test_value_type
 for b in "${bins[@]}"; do
   [ -x "$BUILD/bin/$b" ] && cp "$BUILD/bin/$b" "$STAGE/build/bin/"
 done
+# the grid listing that nanovdb_mitsuba.files loads with ctypes (the render
+# command, sequences, fire and the benchmarks' .vdb cases list grids with it)
+cp "$BUILD/lib/nanovdb_grid_list.so" "$STAGE/build/lib/"
 # Libraries: what ldd resolves outside the C/C++ runtime (which every Linux
 # has, newer on the GPU machine than here) and outside the Mitsuba/Dr.Jit
 # wheels (in python/).
 skip='^(linux-vdso|ld-linux|libc\.|libm\.|libdl\.|libpthread\.|librt\.|libstdc\+\+|libgcc_s)'
-for f in "$STAGE"/build/plugins/*.so "$STAGE"/build/bin/*; do
+for f in "$STAGE"/build/plugins/*.so "$STAGE"/build/bin/* "$STAGE"/build/lib/nanovdb_grid_list.so; do
   ldd "$f" | awk '$3 ~ /^\// {print $1, $3}'
 done | sort -u | while read -r name path; do
   [[ "$name" =~ $skip ]] && continue
