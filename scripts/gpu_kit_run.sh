@@ -134,8 +134,12 @@ if want pytest; then
   # suite's order puts a file it has no CPU timing for last
   step pytest_cuda "$PYTHON" -m pytest tests/test_cuda.py -p no:cacheprovider -rs \
        --junitxml="$OUT/pytest_cuda.xml"
-  step pytest "$PYTHON" -m pytest tests --ignore=tests/test_cuda.py -p no:cacheprovider -rs \
-       --durations=15 --junitxml="$OUT/pytest.xml" "${PYTEST_ARGS[@]}"
+  # (the files that read what the kit does not carry: the README and docs,
+  # pyproject.toml, the plugins' sources)
+  step pytest "$PYTHON" -m pytest tests --ignore=tests/test_cuda.py \
+       --ignore=tests/test_readme.py --ignore=tests/test_plugin_docs.py \
+       --ignore=tests/test_pip_install.py --ignore=tests/test_marked_copies.py \
+       -p no:cacheprovider -rs --durations=15 --junitxml="$OUT/pytest.xml" "${PYTEST_ARGS[@]}"
 fi
 if want bench; then
   # shellcheck disable=SC2086
