@@ -192,7 +192,8 @@ def first_float_grid(vdb, build):
     """The first float grid of a file, from the listing of `build`'s grid
     library (nanovdb_mitsuba.files: structured, not vdb2nvdb --list's text)"""
     os.environ["NVDB_BUILD_DIR"] = os.path.abspath(build)  # (the library read; also the children's)
-    sys.path.insert(0, os.path.join(ROOT, "python"))
+    if os.path.join(ROOT, "python") not in sys.path:
+        sys.path.insert(0, os.path.join(ROOT, "python"))
     from nanovdb_mitsuba import files
     rows = files.grid_rows(vdb)
     for name, type_ in rows:

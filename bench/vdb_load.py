@@ -36,7 +36,6 @@ def load_child(spec):
     grid on the backend); the process's peak resident memory at the end."""
     import resource
     import time
-    sys.path.insert(0, str(ROOT / "python"))
     import mitsuba as mi
     mi.set_variant(spec["variant"])
     import nanovdb_mitsuba

@@ -91,9 +91,10 @@ step() {  # step NAME COMMAND...: runs it, logs to $OUT/NAME.log, records its ex
   local t0=$SECONDS
   if [ "$limit" != 0 ]; then
     # timeout runs programs, not shell functions: a function step runs in a
-    # child bash that is given it (export -f) and the variables it reads
+    # child bash that is given it (export -f; the variables it reads are
+    # exported where it is defined)
     if declare -F "$1" > /dev/null; then
-      export -f "$1"; export H OUT PYTHON OPTIMIZE_ARGS
+      export -f "$1"
       timeout --kill-after=10 "$limit" bash -c '"$@"' _ "$@" > "$OUT/$name.log" 2>&1
     else
       timeout --kill-after=10 "$limit" "$@" > "$OUT/$name.log" 2>&1
@@ -185,6 +186,7 @@ if want optimize; then
     done
     return $rc
   }
+  export H OUT PYTHON OPTIMIZE_ARGS   # (what optimize reads, in step's child bash too)
   step optimize optimize
 fi
 

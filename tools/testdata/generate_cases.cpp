@@ -220,10 +220,15 @@ openvdb::GridPtrVec fireball(int n) {
         return 0.34 * (1.0 + 0.3 * std::tanh(centred(quintic_fbm(2 * x, 2 * y, 2 * z, kSeed + 21))
                                              / 1.5));
     };
-    auto at = [&](const Coord &c, double &r, double &radius) {
-        const double x = (c.x() + 0.5) * inv, y = (c.y() + 0.5) * inv, z = (c.z() + 0.5) * inv;
-        r = std::sqrt((x - 0.5) * (x - 0.5) + (y - 0.47) * (y - 0.47) + (z - 0.5) * (z - 0.5));
-        radius = radius_at(x, y, z);
+    // a voxel's centre in the unit cube, its distance r from the ball's
+    // centre and the ball's radius in its direction
+    struct At { double x, y, z, r, radius; };
+    auto at = [&](const Coord &c) {
+        At a{ (c.x() + 0.5) * inv, (c.y() + 0.5) * inv, (c.z() + 0.5) * inv, 0.0, 0.0 };
+        a.r = std::sqrt((a.x - 0.5) * (a.x - 0.5) + (a.y - 0.47) * (a.y - 0.47) +
+                        (a.z - 0.5) * (a.z - 0.5));
+        a.radius = radius_at(a.x, a.y, a.z);
+        return a;
     };
     auto density = FloatGrid::create(0.f);
     // the largest radius, 0.34 x 1.3, and the edge: a box of 0.45 around the centre
@@ -232,14 +237,12 @@ openvdb::GridPtrVec fireball(int n) {
                    int(std::ceil(0.95 * n)) - 1);
     density->tree().denseFill(CoordBBox(lo, hi), 1.f, /*active=*/true);
     fill_by_function(*density, [&](const Coord &c) {
-        double r, radius;
-        at(c, r, radius);
-        const double edge = std::clamp((radius - r) / 0.06, 0.0, 1.0);
+        const At a = at(c);
+        const double edge = std::clamp((a.radius - a.r) / 0.06, 0.0, 1.0);
         if (edge <= 0.0)
             return 0.f;
-        const double x = (c.x() + 0.5) * inv, y = (c.y() + 0.5) * inv, z = (c.z() + 0.5) * inv;
-        const double turb =
-            std::clamp(0.55 + 0.3 * centred(quintic_fbm(4 * x, 4 * y, 4 * z, kSeed + 22)), 0.1, 1.0);
+        const double turb = std::clamp(
+            0.55 + 0.3 * centred(quintic_fbm(4 * a.x, 4 * a.y, 4 * a.z, kSeed + 22)), 0.1, 1.0);
         return float(edge * turb);
     });
     openvdb::tools::pruneInactive(density->tree());
@@ -250,15 +253,11 @@ openvdb::GridPtrVec fireball(int n) {
     openvdb::tree::LeafManager<openvdb::FloatTree> leaves(temperature->tree());
     leaves.foreach([&](openvdb::FloatTree::LeafNodeType &leaf, size_t) {
         for (auto it = leaf.beginValueOn(); it; ++it) {
-            const Coord c = it.getCoord();
-            double r, radius;
-            at(c, r, radius);
-            const double x = (c.x() + 0.5) * inv, y = (c.y() + 0.5) * inv,
-                         z = (c.z() + 0.5) * inv;
-            double heat = std::sqrt(std::clamp(1.0 - (r / (0.85 * radius)) * (r / (0.85 * radius)),
-                                               0.0, 1.0));
-            heat *= std::clamp(1.0 + 0.15 * centred(quintic_fbm(3 * x, 3 * y, 3 * z, kSeed + 23)),
-                               0.5, 1.5);
+            const At a = at(it.getCoord());
+            const double q = a.r / (0.85 * a.radius);
+            double heat = std::sqrt(std::clamp(1.0 - q * q, 0.0, 1.0));
+            heat *= std::clamp(
+                1.0 + 0.15 * centred(quintic_fbm(3 * a.x, 3 * a.y, 3 * a.z, kSeed + 23)), 0.5, 1.5);
             it.setValue(float(2.8 * std::min(heat, 1.0)));
         }
     });
