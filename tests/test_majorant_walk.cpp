@@ -227,6 +227,7 @@ std::vector<Ray> random_rays(const WalkGrid &g, uint64_t seed, bool coarse) {
 
 struct Segment {
     float t0, t1, majorant;
+    float control = 0.f, minorant = 0.f; ///< with controls
 };
 
 /// Calls fn(std::integral_constant<uint32_t, T>) for a grid type
@@ -238,17 +239,17 @@ template <typename Fn> decltype(auto) with_type(uint32_t grid_type, Fn &&fn) {
 template <typename Buffer, typename Root>
 std::vector<Segment> walk_scalar(const Buffer &buf, const Root &root,
                                  const ndr::MajorantGrid<uint32_t> &mg, const Ray &r,
-                                 uint32_t grid_type) {
+                                 uint32_t grid_type, bool controls = false) {
     using V = dr::Array<float, 3>;
     const V o(r.o[0], r.o[1], r.o[2]), d(r.d[0], r.d[1], r.d[2]);
     return with_type(grid_type, [&](auto type) {
         constexpr uint32_t T = decltype(type)::value;
         ndr::MajorantWalk<float> w =
-            ndr::walk_begin<T>(buf, root, mg, o, d, r.tmin, r.tmax, r.coarse_limit, true);
+            ndr::walk_begin<T>(buf, root, mg, o, d, r.tmin, r.tmax, r.coarse_limit, true, controls);
         std::vector<Segment> out;
         for (int s = 0; s < MAX_STEPS && ndr::walk_valid(w); ++s) {
-            out.push_back({ w.hdda.tmin, w.segment_end(), w.majorant });
-            ndr::walk_advance<T>(buf, root, mg, w, o, d, r.coarse_limit, true);
+            out.push_back({ w.hdda.tmin, w.segment_end(), w.majorant, w.control, w.minorant });
+            ndr::walk_advance<T>(buf, root, mg, w, o, d, r.coarse_limit, true, controls);
         }
         return out;
     });
@@ -321,7 +322,7 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
             for (bool coarse : { false, true }) {
                 const std::vector<Ray> rays = random_rays(g, coarse ? 2 : 1, coarse);
                 size_t segments = 0, points = 0, gaps = 0, exceed = 0, wrong_bound = 0,
-                       truncated = 0;
+                       truncated = 0, bad_control = 0, below = 0;
                 const size_t per_ray = POINTS_PER_GRID / RAY_COUNT / 2;
                 // The faithful readers (64-bit child offsets, the root's linear
                 // search) must walk exactly as the plan's
@@ -340,6 +341,26 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
                         (!segs.empty() && std::memcmp(segs.data(), segs_faithful.data(),
                                                       segs.size() * sizeof(Segment)) != 0))
                         ++reader_mismatches;
+                    // With controls: the same segments, each with its control
+                    // and lower bound (checked at the points below)
+                    std::vector<Segment> segs_c = reader.apply(
+                        g.words.data(), [&](const auto &buf, const auto &root) {
+                            return walk_scalar(buf, root, mg, r, g.grid_type, true);
+                        });
+                    bool same = segs_c.size() == segs.size();
+                    for (size_t s = 0; same && s < segs.size(); ++s) {
+                        same = segs_c[s].t0 == segs[s].t0 && segs_c[s].t1 == segs[s].t1 &&
+                               segs_c[s].majorant == segs[s].majorant;
+                        if (!(segs_c[s].minorant >= 0.f && segs_c[s].minorant <= segs_c[s].control &&
+                              segs_c[s].control <= segs_c[s].majorant) && ++bad_control <= 5) {
+                            INFO("segment " << s << ": minorant " << segs_c[s].minorant << ", control "
+                                            << segs_c[s].control << ", majorant " << segs_c[s].majorant);
+                            CHECK(false);
+                        }
+                    }
+                    if (!same)
+                        ++reader_mismatches;
+                    segs = std::move(segs_c);
                     if (r.tmin < r.tmax && segs.empty()) {
                         ++gaps;
                         continue;
@@ -389,6 +410,7 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
                             q[a] = double(r.o[a]) + double(r.d[a]) * t + double(g.base[a]);
                         float v = ref.value(int64_t(std::floor(q[0])), int64_t(std::floor(q[1])),
                                             int64_t(std::floor(q[2])));
+                        float lo = v;
                         const int64_t b[3] = { int64_t(std::floor(q[0] - 0.5)),
                                                int64_t(std::floor(q[1] - 0.5)),
                                                int64_t(std::floor(q[2] - 0.5)) };
@@ -397,6 +419,19 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
                                                       b[2] + (corner >> 2 & 1));
                             if (c > v || std::isnan(v))
                                 v = c;
+                            if (c < lo || std::isnan(lo))
+                                lo = c;
+                        }
+                        // The lower bound: at most every value read there (to the
+                        // rounding of one product); negative values (level sets)
+                        // are below every lower bound, which is >= 0 (a medium's
+                        // density is)
+                        if (lo >= 0.f && lo < sg.minorant * (1.f - 1e-6f) && ++below <= 5) {
+                            INFO("point t = " << t << " in [" << sg.t0 << ", " << sg.t1
+                                              << "]: value " << lo << " < lower bound " << sg.minorant
+                                              << " (control " << sg.control << ", bound "
+                                              << sg.majorant << ")");
+                            CHECK(false);
                         }
                         ++points;
                         if (v > sg.majorant && ++exceed <= 5) {
@@ -410,10 +445,13 @@ TEST_CASE("majorant walk: segments tile the ray and bound every lookup in them")
                 MESSAGE(label, ": ", rays.size(), " rays, ", segments,
                         " segments, ", points, " points; ", gaps, " gaps, ", exceed,
                         " bounds exceeded, ", wrong_bound, " wrong bounds, ", truncated,
-                        " truncated");
+                        " truncated, ", below, " below the lower bound, ", bad_control,
+                        " controls out of order");
                 CHECK(reader_mismatches == 0);
                 CHECK(gaps == 0);
                 CHECK(exceed == 0);
+                CHECK(below == 0);
+                CHECK(bad_control == 0);
                 CHECK(wrong_bound == 0);
                 CHECK(truncated == 0);
                 CHECK(points >= POINTS_PER_GRID / 2 - RAY_COUNT);

@@ -347,19 +347,40 @@ def ratio_tracking_second_moment(mu, sigma, length):
     return np.exp(-mu * length + mu * length * (1 - sigma / mu) ** 2)
 
 
+def residual_second_moment(M, mean, L, sigma, length):
+    """E[W^2] of residual ratio tracking (tracking.h) through a constant
+    medium sigma in one cell of bound M, voxel mean `mean` and lower bound
+    L, as the table stores them (majorant_table.h: the control is the mean
+    rounded to a 4-bit fraction of M, the lower bound rounded down):
+    W = exp(-c len) f^N, f = (mu_r - (sigma - c)) / mu_r, N ~ Poisson(mu_r
+    len), mu_r = max(M - c, c - L), so E[W] = exp(-sigma len) and
+    E[W^2] = exp(-2 c len + mu_r len (f^2 - 1))."""
+    c = M * round(15 * mean / M) / 15
+    lo = M * math.floor(15 * L / M) / 15
+    mu_r = max(M - c, c - lo, M / 1024)
+    f = (mu_r - (sigma - c)) / mu_r
+    return np.exp(-2 * c * length + mu_r * length * (f * f - 1))
+
+
+@pytest.mark.parametrize("estimator", ["ratio", "residual"])
 @pytest.mark.parametrize("hot", [None, 4.0], ids=["tight", "loose"])
-def test04_shadow_rays_ratio_tracking_analytic(variants_rgb, tmp_path, hot):
+def test04_shadow_rays_ratio_tracking_analytic(variants_rgb, tmp_path, hot, estimator):
     # Density 1 over the 8^3 box (nearest), scale 1. The camera ray (delta
-    # tracking) and the shadow ray to the sun (ratio tracking) both cross
-    # one column of length 1, so each pixel estimates T^2 = exp(-2).
+    # tracking) and the shadow ray to the sun (ratio or residual ratio
+    # tracking) both cross one column of length 1, so each pixel estimates
+    # T^2 = exp(-2).
     # tight: majorant 1 = density; ratio tracking's weight is 0 at the
-    #        first collision (binomial).
+    #        first collision (binomial); residual tracking's control is the
+    #        density, so its weight is exp(-1) exactly.
     # loose: voxel (0, 0, 0) holds 4, which makes the leaf's majorant 4
     #        (the leaf, the whole box, is the walk's finest cell); the film
     #        covers x, y in [0.2, 0.9], away from that column, so every ray
     #        sees density 1 against majorant 4 and ratio tracking weighs
-    #        each null collision by 3/4.
-    # Per sample X = B * W (B ~ Bernoulli(T), W the ratio estimate):
+    #        each null collision by 3/4; residual tracking integrates the
+    #        leaf's mean (515 / 512, as 4 bits of 4: 16 / 15) exactly and
+    #        weighs its few collisions by ~1.02.
+    # The lower bound is 0: the leaf's ring reaches the background.
+    # Per sample X = B * W (B ~ Bernoulli(T), W the shadow ray's estimate):
     # E[X^2] = T * E[W^2]; 5 standard errors.
     args = ["--value", 1.0] + (["--set", 0, 0, 0, hot] if hot else [])
     nvdb, _, _ = make_stab(tmp_path, "ratio", *args, dense=False)
@@ -367,10 +388,13 @@ def test04_shadow_rays_ratio_tracking_analytic(variants_rgb, tmp_path, hot):
     size, spp = spp_for_analytic()
     mu = hot or 1.0
     t = np.exp(-1.0)
-    std = np.sqrt(t * ratio_tracking_second_moment(mu, 1.0, 1.0) - t ** 4)
+    w2 = (ratio_tracking_second_moment(mu, 1.0, 1.0) if estimator == "ratio" else
+          residual_second_moment(mu, (511 + mu) / 512, 0.0, 1.0, 1.0))
+    std = np.sqrt(t * w2 - t ** 4)
     for coarse in [0.0, 2.0]:
         img = transmittance_scene("volpathlocal", vol, size=size, spp=spp, view=(0.2, 0.9),
-                                  shadow=True, coarse_optical_depth=coarse)
+                                  shadow=True, coarse_optical_depth=coarse,
+                                  transmittance=estimator)
         assert_mean_close(img, spp, t * t, std, coarse)
         assert np.all(img >= 0)
         # The estimator's variance, so that a regression shows: every pixel
@@ -379,13 +403,14 @@ def test04_shadow_rays_ratio_tracking_analytic(variants_rgb, tmp_path, hot):
         # pixels), against E[X^2] - E[X]^2 above. A ratio-tracking step made
         # binary (zero at a collision with probability sigma / mu: unbiased)
         # gives 2.3x the variance where the majorant is loose (measured 0.94-1.10x
-        # of the analytic one with ratio tracking), and fails this.
+        # of the analytic one with ratio tracking), and fails this; so does
+        # residual tracking with ratio tracking's variance (loose: 1.45x).
         measured = img.var(ddof=1) * spp
         assert 0.65 * std ** 2 <= measured <= 1.35 * std ** 2, (coarse, measured, std ** 2)
-        # Samples are 0 or 1 where the majorant is tight; fractional ratio
-        # tracking weights show in pixel sums that are not integers
+        # Samples are 0 or 1 where ratio tracking's majorant is tight;
+        # fractional weights show in pixel sums that are not integers
         fractional = np.abs(img * spp - np.round(img * spp)) > 1e-3
-        assert fractional.any() == bool(hot)
+        assert fractional.any() == (bool(hot) or estimator == "residual")
 
 
 def test04b_shadow_estimates_average_independent_estimates(variants_rgb, tmp_path):
@@ -403,7 +428,7 @@ def test04b_shadow_estimates_average_independent_estimates(variants_rgb, tmp_pat
     t, w2 = np.exp(-1.0), ratio_tracking_second_moment(4.0, 1.0, 1.0)
     for m in (1, 4):
         img = transmittance_scene("volpathlocal", vol, size=size, spp=spp, view=(0.2, 0.9),
-                                  shadow=True, shadow_estimates=m)
+                                  shadow=True, shadow_estimates=m, transmittance="ratio")
         var = t * (w2 / m + (m - 1) / m * t * t) - t ** 4
         assert_mean_close(img, spp, t * t, np.sqrt(var), m)
         measured = img.var(ddof=1) * spp
@@ -710,19 +735,23 @@ def test19_spectral_extinction_scattering_matches_volpath(variants_rgb):
     assert_same_expectation(scene, spp=64 if dr.is_jit_v(mi.Float) else 16)
 
 
-def test20_columns_stiff_shadow_rays_analytic(variants_rgb, tmp_path):
-    # Issue 34's stiff cases for the estimators that exist: 13 columns along
+@pytest.mark.parametrize("estimator", ["ratio", "residual"])
+def test20_columns_stiff_shadow_rays_analytic(variants_rgb, tmp_path, estimator):
+    # Issue 34's stiff cases: 13 columns along
     # x with densities 1e-6, 1e-5, ..., 1e6 in one grid (nearest), scale
     # 1e-3, so that a ray along +z through column c has optical depth
     # tau_c = 1e-9 ... 1e3. With the sun behind the camera (shadow=True)
     # each pixel estimates T^2 = exp(-2 tau): delta tracking on the camera
-    # ray, ratio tracking on the shadow ray, against each leaf's majorant
+    # ray, (residual) ratio tracking on the shadow ray, against each leaf's majorant
     # (the column of 1e6 shares leaf 1 with those of 1e2 ... 1e5, which
     # ratio tracking then crosses with fractional weights). Every estimate
     # is finite and in [0, 1]; each column's mean (its 3 x 39 pixels) is within 5 standard
     # errors of exp(-2 tau) (a variable in [0, 1] of mean m has variance
     # at most m (1 - m)), and the two stiffest columns (tau = 100 and 1000)
-    # are exactly 0.
+    # are exactly 0. Residual ratio tracking (the default) promises
+    # estimates >= 0, not <= 1 (its factors lie in [0, 2]: a thin column
+    # in a leaf whose mean is dense gains weight), so there each column's
+    # tolerance is 5 standard errors of its pixels' spread.
     nvdb, _, _ = make_stab(tmp_path, "cols", "--min", 0, 0, 0, "--max", 12, 3, 3,
                            "--fill", "columns", "--lo", 1e-6, "--ratio", 10, dense=False)
     vol = load_nvdb(nvdb, filter_type="nearest")
@@ -732,8 +761,10 @@ def test20_columns_stiff_shadow_rays_analytic(variants_rgb, tmp_path):
     taus = np.array([float(np.float32(1e-6 * 10.0 ** c)) for c in range(13)]) * scale
     for coarse in [0.0, 2.0]:
         img = transmittance_scene("volpathlocal", vol, scale=scale, size=size, spp=spp,
-                                  view=(0.0, 1.0), shadow=True, coarse_optical_depth=coarse)
-        assert np.all(np.isfinite(img)) and np.all(img >= 0) and np.all(img <= 1 + 1e-6)
+                                  view=(0.0, 1.0), shadow=True, coarse_optical_depth=coarse,
+                                  transmittance=estimator)
+        assert np.all(np.isfinite(img)) and np.all(img >= 0)
+        assert estimator == "residual" or np.all(img <= 1 + 1e-6)
         if img.mean(axis=0)[1] < img.mean(axis=0)[-2]:  # (which way the image's x runs)
             img = img[:, ::-1]
         for c in range(13):
@@ -743,6 +774,8 @@ def test20_columns_stiff_shadow_rays_analytic(variants_rgb, tmp_path):
                 assert np.all(centre == 0.0), (c, coarse, centre.max())
                 continue
             tol = max(5 * math.sqrt(expect * (1 - expect) / (centre.size * spp)), 1e-6)
+            if estimator == "residual":
+                tol = max(tol, 5 * float(np.std(centre, ddof=1)) / math.sqrt(centre.size))
             if mi.is_spectral:  # (colour noise of the wavelength sampling)
                 tol += 5 * float(np.std(centre)) / math.sqrt(centre.size)
             assert abs(centre.mean() - expect) <= tol, (c, coarse, centre.mean(), expect, tol)
@@ -750,7 +783,7 @@ def test20_columns_stiff_shadow_rays_analytic(variants_rgb, tmp_path):
 
 @pytest.mark.parametrize("scale", [0.05, 0.3])
 def test21_ramp_along_the_ray_analytic(variants_rgb, tmp_path, scale):
-    # Issue 34's linear ramp, for the estimators that exist: 16 x 4 x 4
+    # Issue 34's linear ramp: 16 x 4 x 4
     # voxels of value i along x (nearest: 0, 1, ..., 15), turned by the
     # volume's to_world so that the grid's x runs along the rays (+z). Each
     # ray crosses voxels 0..15, 1/16 of the box each: tau = scale x 120 / 16
@@ -766,9 +799,107 @@ def test21_ramp_along_the_ray_analytic(variants_rgb, tmp_path, scale):
                     to_world=T().translate([1, 0, 0]) @ T().rotate([0, 1, 0], -90))
     tau = scale * 120.0 / 16.0
     size, spp = (16, 256) if dr.is_jit_v(mi.Float) else (8, 64)
-    for shadow, expect in [(False, math.exp(-tau)), (True, math.exp(-2.0 * tau))]:
+    for shadow, expect, estimator in [(False, math.exp(-tau), "ratio"),
+                                      (True, math.exp(-2.0 * tau), "ratio"),
+                                      (True, math.exp(-2.0 * tau), "residual")]:
         img = transmittance_scene("volpathlocal", vol, scale=scale, size=size, spp=spp,
-                                  shadow=shadow)
-        assert np.all(np.isfinite(img)) and np.all(img >= 0) and np.all(img <= 1 + 1e-6)
-        assert_mean_close(img, spp, expect, math.sqrt(expect * (1 - expect)),
-                          f"shadow={shadow}")
+                                  shadow=shadow, transmittance=estimator)
+        assert np.all(np.isfinite(img)) and np.all(img >= 0)
+        # Residual ratio tracking's factors lie in [0, 2]: its estimates may
+        # exceed 1, so its bound is 5 standard errors of the pixels' spread
+        std = math.sqrt(expect * (1 - expect))
+        if estimator == "residual":
+            std = max(std, float(np.std(img, ddof=1)) * math.sqrt(spp))
+        else:
+            assert np.all(img <= 1 + 1e-6)
+        assert_mean_close(img, spp, expect, std, f"shadow={shadow}, {estimator}")
+
+
+def slab_shadow_scene(nvdb, scale, estimator, size=16, spp=128):
+    """Shadow rays alone: an orthographic camera looks along +z at a white
+    diffuse plane (z = 0, facing it) through vacuum; a sun shines on the
+    plane at 60 degrees from its normal (irradiance pi: radiance T / 2),
+    through a slab of medium 1 thick that the camera rays miss. The slab
+    is a cube turned so that its local z (and the grid's) runs along the
+    sun: every shadow ray crosses the grid along an axis, through its
+    middle. Each pixel estimates T / 2 with the shadow ray's estimator
+    alone. Returns 2 x the image: T per pixel."""
+    d = np.array([math.sin(math.pi / 3), 0.0, math.cos(math.pi / 3)])
+    centre = (-3.0 * d).tolist()
+    T = mi.ScalarTransform4f
+    slab = (T().translate(centre) @ T().rotate([0, 1, 0], 60) @ T().scale([1.5, 1.5, 0.5]))
+    volume = load_nvdb(nvdb, filter_type="nearest",
+                       to_world=slab @ T().translate([-1, -1, -1]) @ T().scale(2))
+    scene = {
+        "type": "scene",
+        "integrator": {"type": "volpathlocal", "max_depth": 2, "transmittance": estimator,
+                       **TRACK_ALWAYS},
+        "sensor": {"type": "orthographic",
+                   "to_world": T4().look_at(origin=[0, 0, -6], target=[0, 0, 0], up=[0, 1, 0])
+                   @ T4().scale([0.5, 0.5, 1]),
+                   "film": film(size), "sampler": {"type": "independent", "sample_count": spp}},
+        "slab": unit_cube({"type": "heterogeneous", "sigma_t": volume, "albedo": 0.0,
+                           "scale": scale}, to_world=slab),
+        "sun": {"type": "directional", "direction": d.tolist(), "irradiance": math.pi},
+        "plane": {"type": "rectangle", "to_world": T4().rotate([1, 0, 0], 180),
+                  "bsdf": {"type": "diffuse", "reflectance": 1.0}},
+    }
+    scene = mi.load_dict(scene)
+    img = 2.0 * np.array(mi.render(scene), dtype=np.float64)[..., 0]
+    assert tracked_media(scene) == 1
+    return img
+
+
+@pytest.mark.parametrize("hot", [None, 4.0], ids=["tight", "loose"])
+def test22_stiff_slab_shadow_rays_analytic(variants_rgb, tmp_path, hot):
+    # Issue 34's stiff cases for the shadow-ray estimators alone
+    # (slab_shadow_scene: the camera rays miss the medium): a grid of
+    # density 1 (loose: voxel (0, 0, 0), which no shadow ray crosses,
+    # holds 4 and raises the leaf's bound), optical depth tau = scale
+    # from 1e-6 to 1e3 along grid-axis rays. Every estimate is finite and
+    # >= 0 (ratio tracking's also <= 1), and the mean is exp(-tau) within
+    # 5 standard errors of the pixels' spread (ratio tracking: or of a
+    # binomial; at least 2e-6 of T and an absolute 1e-12). Residual tracking with the tight control is
+    # exp(-tau) exactly until its Russian roulette (below 1e-3, from tau
+    # ~7): tau = 8 and 30 check that the roulette's survivors are weighted.
+    # The variance of one estimate (loose, tau = 1): each against its
+    # analytic value within 35 %, and residual's below half of ratio's.
+    args = ["--value", 1.0] + (["--set", 0, 0, 0, hot] if hot else [])
+    nvdb, _, _ = make_stab(tmp_path, "slab", *args, dense=False)
+    size, spp = (16, 256) if dr.is_jit_v(mi.Float) else (8, 64)
+    variance = {}
+    for estimator in ["ratio", "residual"]:
+        for tau in [1e-6, 1.0, 8.0, 30.0, 1e3]:
+            img = slab_shadow_scene(nvdb, tau, estimator, size=size, spp=spp)
+            assert np.all(np.isfinite(img)) and np.all(img >= 0), (estimator, tau)
+            assert estimator == "residual" or np.all(img <= 1 + 1e-6)
+            expect = math.exp(-float(np.float32(tau)))
+            # At least 2e-6 of T: at tau = 1e-6 the walk crosses the grid's
+            # whole upper node as one cell, whose mean is ~0, so residual
+            # tracking is ratio tracking there, and its rare collisions,
+            # 1e-6 per ray, do not show in the spread. And 6e-4 tau of T:
+            # where residual tracking is exact (tight), it shows Mitsuba's
+            # ray offset at the slab's entry (spawn_ray: (1 + |p|) x
+            # RayEpsilon along the normal), which shortens every path in
+            # the medium by 2.8e-4 here: measured 2.1e-4, 2.8e-4 and 5.2e-4
+            # with the slab 2, 3 and 6 from the origin; volpath's paths
+            # lose the same
+            tol = max(5 * float(np.std(img, ddof=1)) / math.sqrt(img.size),
+                      (2e-6 + 6e-4 * tau) * expect, 1e-12)
+            if estimator == "ratio":  # (binomial where tight: spread may be 0)
+                tol = max(tol, 5 * math.sqrt(expect * (1 - expect) / (img.size * spp)))
+            assert abs(img.mean() - expect) <= tol, (estimator, tau, img.mean(), expect, tol)
+            if tau == 1.0:
+                variance[estimator] = img.var(ddof=1) * spp
+    mu = hot or 1.0
+    want = {"ratio": ratio_tracking_second_moment(mu, 1.0, 1.0) - math.exp(-2.0),
+            "residual": residual_second_moment(mu, (511 + mu) / 512, 0.0, 1.0, 1.0)
+            - math.exp(-2.0)}
+    print(f"{mi.variant()} {hot}: variance per sample {variance}, analytic {want}")
+    if hot:
+        for estimator in want:
+            assert 0.65 * want[estimator] <= variance[estimator] <= 1.35 * want[estimator], \
+                (estimator, variance, want)
+        assert variance["residual"] < 0.5 * variance["ratio"], variance
+    else:  # tight: residual is exact (to rounding), ratio binomial
+        assert variance["residual"] < 1e-6 and variance["ratio"] > 0.1, variance

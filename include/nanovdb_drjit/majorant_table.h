@@ -13,11 +13,14 @@
 
       [0, leaf_slots)                         one per leaf, in leaf array order
                                               (FpN: one per 160 bytes of leaves)
-      lower_slot + 1107 n + {0, 1, 2,         lower node n: M, R, m,
+      lower_slot + 2148 n + {0, 1, 2,         lower node n: M, R, m,
                              3 + b,           brick b's M,
                              67 + b / 4,      brick b's m (8 bits, byte b % 4),
-                             83 + e / 4}      entry e's bound (8 bits, byte e % 4)
-      upper_slot + 3 n + {0, 1, 2}            upper node n: M, R, m
+                             83 + e / 4,      entry e's bound (8 bits, byte e % 4)
+                             1107 + e / 4,    entry e's control (8 bits, byte e % 4)
+                             2131 + b / 4,    brick b's control (8 bits, byte b % 4)
+                             2147}            the node's control (32 bits)
+      upper_slot + 4 n + {0, 1, 2, 3}         upper node n: M, R, m, its control (32 bits)
       tile_slot + t                           root tile t, in table order
       background_slot                         the background
 
@@ -38,6 +41,20 @@
     the leaf's slot (4 KiB per lower node). See nanovdb_loader/majorants.h
     for the exact definitions.
 
+    Controls (residual ratio tracking, src/integrators/tracking.h) give a
+    cell two more numbers below its bound M: c, the mean of its voxels,
+    and L, a lower bound of every value a lookup can return in its ringed
+    region (as M is an upper bound). Each is a fraction of the cell's own
+    bound as the walk computes it (an entry's: child_bound, a brick's M,
+    the node's M), so the table's scale (spectral factor, 1 + 2^-20) needs
+    no rewrite: an entry's and a brick's in one byte (c in the high four
+    bits, rounded; L in the low four, rounded down: control_byte), a node's
+    in one word (16 bits each: control_word). Upper tiles take their value
+    as c and 0 as L; root tiles and the background 0 and 0 (ratio tracking
+    there). Residual tracking samples the cells at rate max(M - c, c - L),
+    which is 0 only where M = c = L, i.e. where the value is constant.
+    The model that chose 4 bits: bench/results/transmittance_estimators.md.
+
     A slot is found from the node's word address without a search: node
     arrays are contiguous with a fixed stride per level (validation checks
     it), so slot = first slot + (address - array begin) / node words, a
@@ -53,6 +70,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <utility>
 
 namespace nanovdb_drjit {
 
@@ -67,8 +85,15 @@ static constexpr uint32_t LOWER_BRICK_FRACTION_SLOT = LOWER_BRICK_M_SLOT + LOWER
 /// M, four to a slot
 static constexpr uint32_t LOWER_ENTRY_COUNT = 4096;
 static constexpr uint32_t LOWER_ENTRY_FRACTION_SLOT = LOWER_BRICK_FRACTION_SLOT + LOWER_BRICK_COUNT / 4;
-static constexpr uint32_t LOWER_SLOTS = LOWER_ENTRY_FRACTION_SLOT + LOWER_ENTRY_COUNT / 4;
-static constexpr uint32_t UPPER_SLOTS = 3;
+/// Then the controls (c and L) of its entries and bricks, a byte each, four
+/// to a slot, and the node's, one slot
+static constexpr uint32_t LOWER_ENTRY_CONTROL_SLOT = LOWER_ENTRY_FRACTION_SLOT + LOWER_ENTRY_COUNT / 4;
+static constexpr uint32_t LOWER_BRICK_CONTROL_SLOT = LOWER_ENTRY_CONTROL_SLOT + LOWER_ENTRY_COUNT / 4;
+static constexpr uint32_t LOWER_CONTROL_SLOT = LOWER_BRICK_CONTROL_SLOT + LOWER_BRICK_COUNT / 4;
+static constexpr uint32_t LOWER_SLOTS = LOWER_CONTROL_SLOT + 1;
+/// Per upper node: M, R, m, then its control
+static constexpr uint32_t UPPER_CONTROL_SLOT = 3;
+static constexpr uint32_t UPPER_SLOTS = UPPER_CONTROL_SLOT + 1;
 
 /// The brick (0..63) of a lower node that holds local coordinate ijk & 127
 constexpr uint32_t brick_of(uint32_t i, uint32_t j, uint32_t k) {
@@ -109,6 +134,33 @@ inline uint32_t child_fraction(float M, float r) {
         if (double(child_bound(M, q)) >= want)
             return q;
     return 255;
+}
+
+/// A cell's control c and lower bound L from its bound M and their bits
+/// (control_byte's four and four, or control_word's 16 and 16): the device
+/// and the tests compute them so
+template <uint32_t Bits, typename Value, typename Word>
+inline auto control_of(const Value &M, const Word &bits) {
+    constexpr uint32_t mask = (1u << Bits) - 1u;
+    constexpr float unit = 1.f / float(mask);
+    return std::make_pair(M * (Value((bits >> Bits) & mask) * unit),
+                          M * (Value(bits & mask) * unit));
+}
+
+/// The bits of a cell of bound M whose voxels' mean is c and whose ringed
+/// region's smallest value is L (<= c): c rounded, L rounded down, each a
+/// fraction of M in [0, 1], so that the device's L stays at most the true
+/// one (to the rounding of one product). Bits = 4: a byte; 16: a word.
+template <uint32_t Bits> inline uint32_t control_bits(float M, float c, float L) {
+    constexpr uint32_t top = (1u << Bits) - 1u;
+    if (!(M > 0.f) || std::isinf(M))
+        return 0;
+    auto frac = [M](float v) { return std::clamp(double(v) / double(M), 0.0, 1.0); };
+    const uint32_t qc = uint32_t(std::lround(frac(c) * top));
+    uint32_t ql = uint32_t(std::floor(frac(L) * top));
+    if (ql == top && !(L >= M)) // (the rounding of L / M)
+        ql = top - 1;
+    return (qc << Bits) | std::min(ql, qc);
 }
 
 /// Where the bounds of a grid's nodes sit in its majorant array

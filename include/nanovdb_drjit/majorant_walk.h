@@ -117,13 +117,17 @@ template <typename UInt32> struct MajorantGrid {
             float v = values[i] * factor;
             std::memcpy(&bits[i], &v, 4);
         }
-        // The bricks' and entries' 8-bit fractions are bits, not values:
-        // kept as they are (they follow one another)
+        // The bricks' and entries' 8-bit fractions and the controls are
+        // bits, not values: kept as they are (in a lower node they follow
+        // one another to its last slot)
         static_assert(LOWER_ENTRY_FRACTION_SLOT == LOWER_BRICK_FRACTION_SLOT + LOWER_BRICK_COUNT / 4 &&
-                      LOWER_SLOTS == LOWER_ENTRY_FRACTION_SLOT + LOWER_ENTRY_COUNT / 4);
+                      LOWER_ENTRY_CONTROL_SLOT == LOWER_ENTRY_FRACTION_SLOT + LOWER_ENTRY_COUNT / 4 &&
+                      LOWER_SLOTS == LOWER_CONTROL_SLOT + 1);
         for (uint32_t s = layout.lower_slot; s < layout.upper_slot; s += LOWER_SLOTS)
             std::memcpy(&bits[s + LOWER_BRICK_FRACTION_SLOT], &values[s + LOWER_BRICK_FRACTION_SLOT],
                         4 * (LOWER_SLOTS - LOWER_BRICK_FRACTION_SLOT));
+        for (uint32_t s = layout.upper_slot; s < layout.tile_slot; s += UPPER_SLOTS)
+            std::memcpy(&bits[s + UPPER_CONTROL_SLOT], &values[s + UPPER_CONTROL_SLOT], 4);
         float bg = values[layout.background_slot] * factor;
         if constexpr (dr::is_jit_v<UInt32>)
             g.table = dr::load<UInt32>(bits.data(), bits.size());
@@ -208,6 +212,10 @@ template <typename Float> struct MajorantWalk {
     Float brick_M, brick_m;         ///< ... its bound and its smallest value
     dr::mask_t<Float> far;          ///< the cell is empty root space, crossed in one step ...
     dr::Array<Int32, 3> far_voxel;  ///< ... up to this root tile's first voxel (walk_far)
+    /// With controls (walk_begin's `controls`): the cell's control c (its
+    /// voxels' mean) and a lower bound L of its lookups, 0 <= L <= c <=
+    /// majorant (majorant_table.h); 0 and 0 without
+    Float control, minorant;
 
     /// The start of the current cell along the ray
     Float segment_begin() const { return hdda.tmin; }
@@ -223,7 +231,7 @@ template <typename Float> struct MajorantWalk {
     }
 
     DRJIT_STRUCT(MajorantWalk, hdda, majorant, lower, lower_key, lower_M, lower_m,
-                 lower_slot, brick_slot, brick_M, brick_m, far, far_voxel)
+                 lower_slot, brick_slot, brick_M, brick_m, far, far_voxel, control, minorant)
 };
 
 namespace detail {
@@ -243,7 +251,9 @@ template <typename UInt32> struct CellInfo {
     Float lower_M, lower_m;
     UInt32 lower_slot;
     dr::mask_t<UInt32> background; ///< no root tile covers the cell
-    DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_m, lower_slot, background)
+    Float control, minorant;       ///< with controls, above the lower level
+    DRJIT_STRUCT(CellInfo, dim, bound, lower, lower_M, lower_m, lower_slot, background, control,
+                 minorant)
 };
 
 /// The bound of a tile value at `address`, whose first word the caller has
@@ -279,7 +289,7 @@ template <uint32_t GridType, typename Buffer, typename Root, typename UInt32>
 CellInfo<UInt32> cell_above_lower(const Buffer &buf, const Root &root,
                                   const MajorantGrid<UInt32> &g, const Coord<UInt32> &ijk,
                                   const dr::float32_array_t<UInt32> &coarse_limit,
-                                  const dr::mask_t<UInt32> &active) {
+                                  const dr::mask_t<UInt32> &active, bool controls) {
     using Float = dr::float32_array_t<UInt32>;
     using Mask = dr::mask_t<UInt32>;
     constexpr const GridTypeConstants &c = constants_of<GridType>;
@@ -314,6 +324,13 @@ CellInfo<UInt32> cell_above_lower(const Buffer &buf, const Root &root,
                                             read_uint32(buf, upper_entry, upper_tile), upper_tile);
     out.dim = dr::select(upper_tile, UInt32(128u), out.dim);
     out.bound = dr::select(upper_tile, dr::maximum(tile_value, R_U), out.bound);
+    out.control = out.minorant = Float(0.f);
+    if (controls) { // root tiles and the background: 0 and 0
+        auto [c_U, L_U] = control_of<16>(
+            M_U, read_uint32(g.words(), UInt32(upper_slot + UPPER_CONTROL_SLOT), thin_upper));
+        out.control = dr::select(thin_upper, c_U, dr::select(upper_tile, tile_value, 0.f));
+        out.minorant = dr::select(thin_upper, L_U, 0.f);
+    }
 
     LowerHandle<UInt32> lower = ul.lower;
     Mask has_lower = ul.has_lower;
@@ -339,7 +356,7 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
                                        MajorantWalk<Float> &walk,
                                        const dr::Array<dr::int32_array_t<Float>, 3> &p,
                                        const Float &coarse_limit,
-                                       const dr::mask_t<Float> &active) {
+                                       const dr::mask_t<Float> &active, bool controls = false) {
     using Int32 = dr::int32_array_t<Float>;
     using Mask = dr::mask_t<Float>;
     using Cell = detail::CellInfo<UInt32>;
@@ -361,9 +378,10 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     cell.lower_slot = walk.lower_slot;
     // g by reference: on the scalar path its table is a host vector, which a
     // copy per step would duplicate (dr::if_stmt calls the lambda at once)
-    auto from_root = [buf, root, &g, ijk, coarse_limit](const Cell &kept_cell,
-                                                         const Mask &fresh_) {
-        Cell out = detail::cell_above_lower<GridType>(buf, root, g, ijk, coarse_limit, fresh_);
+    auto from_root = [buf, root, &g, ijk, coarse_limit, controls](const Cell &kept_cell,
+                                                                   const Mask &fresh_) {
+        Cell out = detail::cell_above_lower<GridType>(buf, root, g, ijk, coarse_limit, fresh_,
+                                                      controls);
         return dr::select(fresh_, out, kept_cell);
     };
     if constexpr (dr::is_jit_v<Float>) {
@@ -426,6 +444,22 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     dim = dr::select(thin_brick, UInt32(1u << BRICK_LOG2_DIM), dim);
     dim = dr::select(into_brick, UInt32(8u), dim);
 
+    // Controls: in a lower node, one word of the table for the cell (the
+    // entry's byte, the brick's or the node's word); above it, cell_above_lower's
+    Float control = cell.control, minorant = cell.minorant;
+    if (controls) {
+        UInt32 slot = dr::select(into_brick, cell.lower_slot + LOWER_ENTRY_CONTROL_SLOT + (n >> 2),
+                                 dr::select(thin_brick,
+                                            cell.lower_slot + LOWER_BRICK_CONTROL_SLOT + (brick >> 2),
+                                            cell.lower_slot + LOWER_CONTROL_SLOT));
+        UInt32 word = read_uint32(g.words(), slot, thin_lower | thin_brick | into_brick);
+        UInt32 byte = (word >> (dr::select(into_brick, n, brick) & 3u) * 8u) & 255u;
+        auto [c8, L8] = control_of<4>(dr::select(into_brick, entry_bound, brick_M), byte);
+        auto [c16, L16] = control_of<16>(cell.lower_M, word);
+        control = dr::select(thin_lower, c16, dr::select(into_lower, c8, control));
+        minorant = dr::select(thin_lower, L16, dr::select(into_lower, L8, minorant));
+    }
+
     if (g.clamp_to_box) {
         Int32 d = dr::reinterpret_array<Int32>(dim), low = ~(d - 1);
         Mask outside = false;
@@ -434,11 +468,18 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
             outside |= (first > g.box_hi[k]) | (first + (d - 1) < g.box_lo[k]);
         }
         bound = dr::select(outside, dr::maximum(bound, g.outside), bound);
+        control = dr::select(outside, 0.f, control); // (ratio tracking there)
+        minorant = dr::select(outside, 0.f, minorant);
     }
 
     // max(bound, 0) also turns the -Inf of a node without values into 0
     walk.majorant = dr::select(active, dr::minimum(dr::maximum(bound, 0.f), g.clamp),
                                walk.majorant);
+    if (controls) {
+        Float c = dr::clip(control, 0.f, walk.majorant);
+        walk.control = dr::select(active, c, walk.control);
+        walk.minorant = dr::select(active, dr::clip(minorant, 0.f, c), walk.minorant);
+    }
     if (g.far_jumps)
         walk.far = dr::select(active, fresh & cell.background, walk.far);
     return dr::reinterpret_array<Int32>(dim);
@@ -544,12 +585,12 @@ MajorantWalk<Float> walk_begin(const Buffer &buf, const Root &root,
                                const dr::Array<Float, 3> &origin,
                                const dr::Array<Float, 3> &direction, const Float &tmin,
                                const Float &tmax, const Float &coarse_limit,
-                               const dr::mask_t<Float> &active) {
+                               const dr::mask_t<Float> &active, bool controls = false) {
     using Int32 = dr::int32_array_t<Float>;
     MajorantWalk<Float> walk = dr::zeros<MajorantWalk<Float>>();
     dr::mask_t<Float> valid = active & (tmin < tmax);
     dr::Array<Int32, 3> p = hdda_pos_to_ijk(hdda_ray_start(origin, tmin, direction));
-    Int32 dim = walk_classify<GridType>(buf, root, g, walk, p, coarse_limit, valid);
+    Int32 dim = walk_classify<GridType>(buf, root, g, walk, p, coarse_limit, valid, controls);
     walk.hdda = hdda_init(origin, tmin, direction, tmax, dr::select(valid, dim, Int32(8)));
     walk.hdda.tmax = dr::select(valid, tmax, tmin);
     if (g.far_jumps)
@@ -572,7 +613,7 @@ dr::mask_t<Float> walk_advance(const Buffer &buf, const Root &root,
                                const MajorantGrid<UInt32> &g, MajorantWalk<Float> &walk,
                                const dr::Array<Float, 3> &origin,
                                const dr::Array<Float, 3> &direction, const Float &coarse_limit,
-                               const dr::mask_t<Float> &active) {
+                               const dr::mask_t<Float> &active, bool controls = false) {
     using Int32 = dr::int32_array_t<Float>;
     using Mask = dr::mask_t<Float>;
     Hdda<Float> &h = walk.hdda;
@@ -602,7 +643,7 @@ dr::mask_t<Float> walk_advance(const Buffer &buf, const Root &root,
     dr::Array<Int32, 3> p = hdda_pos_to_ijk(pos);
     for (int a = 0; a < 3; ++a)
         p[a] = dr::clip(p[a], h.voxel[a], h.voxel[a] + h.dim - 1);
-    Int32 dim = walk_classify<GridType>(buf, root, g, walk, p, coarse_limit, go);
+    Int32 dim = walk_classify<GridType>(buf, root, g, walk, p, coarse_limit, go, controls);
     Mask resize = go & ((dim != h.dim) | jumped);
     walk_set_cell(h, pos, dim, cell_of(p, dim), resize);
     if (g.far_jumps)

@@ -215,10 +215,13 @@ public:
 
     // ---- The majorant walk, in cell space (majorant_walk.h) -----------------
 
+    /// controls: the walk also gives each cell's control and lower bound
+    /// (MajorantWalk::control, minorant), for residual ratio tracking
     Walk walk_begin(const Vector3f &origin, const Vector3f &direction, const Float &tmin,
-                    const Float &tmax, const Float &coarse_limit, const Mask &active) const;
+                    const Float &tmax, const Float &coarse_limit, const Mask &active,
+                    bool controls = false) const;
     Mask walk_advance(Walk &walk, const Vector3f &origin, const Vector3f &direction,
-                      const Float &coarse_limit, const Mask &active) const;
+                      const Float &coarse_limit, const Mask &active, bool controls = false) const;
 
     // ---- Counters -----------------------------------------------------------
 

@@ -371,11 +371,12 @@ template <typename Float>
 typename GridSampler<Float>::Walk
 GridSampler<Float>::walk_begin(const Vector3f &origin, const Vector3f &direction,
                                const Float &tmin, const Float &tmax, const Float &coarse_limit,
-                               const Mask &active) const {
+                               const Mask &active, bool controls) const {
     Walk walk = layout::visit_value_type(grid_type, [&](auto type) {
         return reader.apply(words(), [&](const auto &buf, const auto &root) {
             return nanovdb_drjit::walk_begin<decltype(type)::value>(
-                buf, root, majorants, origin, direction, tmin, tmax, coarse_limit, active);
+                buf, root, majorants, origin, direction, tmin, tmax, coarse_limit, active,
+                controls);
         });
     });
     count(Counter::Walk, active);
@@ -386,11 +387,12 @@ GridSampler<Float>::walk_begin(const Vector3f &origin, const Vector3f &direction
 template <typename Float>
 typename GridSampler<Float>::Mask
 GridSampler<Float>::walk_advance(Walk &walk, const Vector3f &origin, const Vector3f &direction,
-                                 const Float &coarse_limit, const Mask &active) const {
+                                 const Float &coarse_limit, const Mask &active,
+                                 bool controls) const {
     Mask more = layout::visit_value_type(grid_type, [&](auto type) {
         return reader.apply(words(), [&](const auto &buf, const auto &root) {
             return nanovdb_drjit::walk_advance<decltype(type)::value>(
-                buf, root, majorants, walk, origin, direction, coarse_limit, active);
+                buf, root, majorants, walk, origin, direction, coarse_limit, active, controls);
         });
     });
     count_step(walk, more);

@@ -78,12 +78,20 @@ public:
      */
     virtual WalkRay walk_ray(const Ray3f &ray, const Float &thin_depth, Mask active) const = 0;
 
-    /// Starts the walk on [tmin, tmax] of the ray (see walk_ray)
+    /**
+     * Starts the walk on [tmin, tmax] of the ray (see walk_ray). With
+     * `controls`, each segment also has a control (the mean of its cell's
+     * values) and a lower bound of its lookups, Walk::control and
+     * Walk::minorant, 0 <= minorant <= control <= majorant (residual ratio
+     * tracking); pass the same to walk_advance. Without, they stay 0 and
+     * cost nothing.
+     */
     virtual Walk walk_begin(const WalkRay &ray, const Float &tmin, const Float &tmax,
-                            Mask active) const = 0;
+                            Mask active, bool controls = false) const = 0;
 
     /// To the next segment; false where the walk has ended
-    virtual Mask walk_advance(Walk &walk, const WalkRay &ray, Mask active) const = 0;
+    virtual Mask walk_advance(Walk &walk, const WalkRay &ray, Mask active,
+                              bool controls = false) const = 0;
 };
 
 NAMESPACE_END(mitsuba)

@@ -44,6 +44,23 @@ inline void lower_to(float &m, float v) {
         m = v;
 }
 
+/// Moves m towards v: raises it (Max) or lowers it
+template <bool Max> inline void extend(float &m, float v) {
+    if constexpr (Max)
+        raise(m, v);
+    else
+        lower_to(m, v);
+}
+
+/// What a region of the tree contributes to the controls of the cell that
+/// holds it (majorant_table.h): the mean of its voxels' values (NaN as 0:
+/// the value policy has replaced them) and the smallest value a lookup in
+/// its ringed region can return
+struct Control {
+    double mean = 0.0;
+    float lo = std::numeric_limits<float>::infinity();
+};
+
 /// A bound that starts at v (NaN: at nothing)
 inline float start(float v) { return std::isnan(v) ? kNone : v; }
 
@@ -68,11 +85,15 @@ public:
             s.node_begin, s.node_end, s.node_count, s.root_word, c.root_size, s.root_tile_count,
             m_codec.variable_leaf_size() ? layout::FPN_MIN_LEAF_SIZE : c.leaf_size);
         m_out.values.assign(m_out.layout.size, kNone);
-        // The entries' 8-bit fractions are bits, raised byte by byte: from 0
+        // The entries' 8-bit fractions are bits, raised byte by byte: from 0;
+        // the controls too (a node no walk reaches keeps 0s)
         for (uint32_t i = 0; i < s.node_count[1]; ++i)
             std::fill_n(&m_out.values[m_out.layout.lower_slot + nanovdb_drjit::LOWER_SLOTS * i +
                                       nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT],
-                        nanovdb_drjit::LOWER_ENTRY_COUNT / 4, 0.f);
+                        nanovdb_drjit::LOWER_SLOTS - nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT, 0.f);
+        for (uint32_t i = 0; i < s.node_count[2]; ++i)
+            m_out.values[m_out.layout.upper_slot + nanovdb_drjit::UPPER_SLOTS * i +
+                         nanovdb_drjit::UPPER_CONTROL_SLOT] = 0.f;
         m_background = bound_at(m_view.background());
     }
 
@@ -144,19 +165,23 @@ private:
              }, m_upper_min, m_upper_max);
     }
 
-    /// Raises m to the values of the layer `sel` of what `c` covers (per
-    /// axis: all entries, the lowest or the highest); skips a node whose
-    /// maximum cannot raise m
-    void layer_max(const Cover &c, const Layer sel[3], float &m) const {
+    /// Raises (Max) or lowers m to the values of the layer `sel` of what `c`
+    /// covers (per axis: all entries, the lowest or the highest); skips a
+    /// node whose maximum (minimum) cannot move m
+    template <bool Max = true>
+    void layer_extreme(const Cover &c, const Layer sel[3], float &m) const {
         if (c.level < 0) {
-            raise(m, c.value);
+            extend<Max>(m, c.value);
             return;
         }
         const size_t at = index(c.level, c.node);
-        const float bound = c.level == 0   ? m_grid.leaf_max()[at]
-                            : c.level == 1 ? m_lower_max[at]
-                                           : m_upper_max[at];
-        if (!(bound > m))
+        const float bound = Max ? (c.level == 0   ? m_grid.leaf_max()[at]
+                                   : c.level == 1 ? m_lower_max[at]
+                                                  : m_upper_max[at])
+                                : (c.level == 0   ? m_grid.leaf_min()[at]
+                                   : c.level == 1 ? m_lower_min[at]
+                                                  : m_upper_min[at]);
+        if (Max ? !(bound > m) : !(bound < m))
             return;
         // (constants, not m_view.level(): the loops below run for every
         // neighbour of every node, and known shifts make them cheaper)
@@ -177,11 +202,12 @@ private:
                 for (uint32_t k = lo[2]; k <= hi[2]; ++k) {
                     const uint32_t n = (i << (2 * log2dim)) | (j << log2dim) | k;
                     if (c.level == 0)
-                        raise(m, m_codec.leaf_bound(m_buf + c.node, n));
+                        extend<Max>(m, m_codec.leaf_bound(m_buf + c.node, n));
                     else if (!m_view.child_bit(c.level, c.node, n))
-                        raise(m, bound_at(m_view.entry(c.level, c.node, n)));
+                        extend<Max>(m, bound_at(m_view.entry(c.level, c.node, n)));
                     else
-                        layer_max(Cover{ c.level - 1, m_view.child(c.level, c.node, n), 0.f }, sel, m);
+                        layer_extreme<Max>(Cover{ c.level - 1, m_view.child(c.level, c.node, n), 0.f },
+                                           sel, m);
                 }
     }
 
@@ -207,14 +233,25 @@ private:
                 }
     }
 
-    /// Raises m to the ring of the cell of `level` (0: 8^3, 1: 128^3,
-    /// 2: 4096^3) whose first voxel is `o`: the layers of its 26 neighbours
-    /// that touch it
-    void ring(int level, const int32_t o[3], float &m) {
+    /// Raises (Max) or lowers m to the ring of the cell of `level` (0: 8^3,
+    /// 1: 128^3, 2: 4096^3) whose first voxel is `o`: the layers of its 26
+    /// neighbours that touch it
+    template <bool Max = true> void ring(int level, const int32_t o[3], float &m) {
         const uint32_t log2dim = level == 0 ? 3 : level == 1 ? 7 : 12;
         for_each_neighbour(o, log2dim, false, [&](const int32_t n[3], const Layer sel[3]) {
-            layer_max(find(level, n), sel, m);
+            layer_extreme<Max>(find(level, n), sel, m);
         });
+    }
+
+    /// The mean of a leaf's 512 values (NaN as 0)
+    double leaf_mean(uint64_t leaf) const {
+        double sum = 0.0;
+        for (uint32_t n = 0; n < 512; ++n) {
+            const float v = m_codec.leaf_bound(m_buf + leaf, n);
+            if (std::isfinite(v))
+                sum += v;
+        }
+        return sum / 512.0;
     }
 
     // ---- Bottom-up: entries, then their node --------------------------------------
@@ -222,11 +259,14 @@ private:
     /// An upper node at byte `node`, first voxel `o`: returns its M
     float upper(uint64_t node, const int32_t o[3]) {
         float M = kNone, R = kNone;
+        Control control;
         for (uint32_t n = 0; n < layout::UPPER_TABLE_COUNT; ++n) {
             int32_t eo[3];
             m_view.entry_origin(2, o, n, eo);
             if (m_view.child_bit(2, node, n)) {
-                raise(M, lower(m_view.child(2, node, n), eo));
+                const auto [M_child, child] = lower(m_view.child(2, node, n), eo);
+                raise(M, M_child);
+                add(control, child, layout::UPPER_TABLE_COUNT);
                 continue;
             }
             const float v = start(bound_at(m_view.entry(2, node, n)));
@@ -236,16 +276,39 @@ private:
             // (an index grid's walk cannot read a tile's value, only R)
             if (r > v || m_codec.indexed())
                 raise(R, r);
+            add(control, tile_control(1, eo, v), layout::UPPER_TABLE_COUNT);
         }
         const size_t i = index(2, node);
-        store(m_out.layout.upper_slot + nanovdb_drjit::UPPER_SLOTS * uint32_t(i), M, R,
-              m_upper_min[i]);
+        const uint32_t slot = m_out.layout.upper_slot + nanovdb_drjit::UPPER_SLOTS * uint32_t(i);
+        store(slot, M, R, m_upper_min[i]);
+        put_bits(slot + nanovdb_drjit::UPPER_CONTROL_SLOT,
+                 nanovdb_drjit::control_bits<16>(m_out.values[slot], float(control.mean), control.lo));
         return M;
     }
 
-    /// A lower node at byte `node`, first voxel `o`: returns its M
-    float lower(uint64_t node, const int32_t o[3]) {
+    /// A tile of value v (start()ed) whose cell at `level` starts at o: its
+    /// control (the value; the smallest of it and its ring)
+    Control tile_control(int level, const int32_t o[3], float v) {
+        Control c;
+        c.mean = std::isfinite(v) ? v : 0.0;
+        c.lo = std::isnan(v) || v == kNone ? std::numeric_limits<float>::infinity() : v;
+        ring<false>(level, o, c.lo);
+        return c;
+    }
+
+    /// Adds a part (one of `parts` equal ones) to a region's control
+    static void add(Control &region, const Control &part, uint32_t parts) {
+        region.mean += part.mean / double(parts);
+        lower_to(region.lo, part.lo);
+    }
+
+    /// Stores a control word in a slot of the float table
+    void put_bits(uint32_t slot, uint32_t bits) { std::memcpy(&m_out.values[slot], &bits, 4); }
+
+    /// A lower node at byte `node`, first voxel `o`: returns its M and control
+    std::pair<float, Control> lower(uint64_t node, const int32_t o[3]) {
         float M = kNone, R = kNone;
+        Control control, bricks[nanovdb_drjit::LOWER_BRICK_COUNT];
         float brick[nanovdb_drjit::LOWER_BRICK_COUNT], brick_lo[nanovdb_drjit::LOWER_BRICK_COUNT];
         std::fill(std::begin(brick), std::end(brick), kNone);
         std::fill(std::begin(brick_lo), std::end(brick_lo), std::numeric_limits<float>::infinity());
@@ -260,12 +323,15 @@ private:
                 lo = m_grid.leaf_min()[i];
                 ring(0, eo, r);
                 raise(m_out.values[m_out.layout.leaf_slot(uint32_t(leaf / 4))], r);
+                m_entry_control[n] = { leaf_mean(leaf), lo };
+                ring<false>(0, eo, m_entry_control[n].lo);
             } else {
                 const float v = start(bound_at(m_view.entry(1, node, n)));
                 r = lo = v;
                 ring(0, eo, r);
                 if (r > v)
                     raise(R, r);
+                m_entry_control[n] = tile_control(0, eo, v);
             }
             raise(M, r);
             const uint32_t b = nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
@@ -274,6 +340,8 @@ private:
             raise(brick[b], r);
             lower_to(brick_lo[b], lo);
             m_entry[n] = r;
+            add(bricks[b], m_entry_control[n], nanovdb_drjit::LOWER_ENTRY_COUNT / nanovdb_drjit::LOWER_BRICK_COUNT);
+            add(control, m_entry_control[n], nanovdb_drjit::LOWER_ENTRY_COUNT);
         }
         const size_t i = index(1, node);
         const uint32_t slot = m_out.layout.lower_slot + nanovdb_drjit::LOWER_SLOTS * uint32_t(i);
@@ -310,7 +378,35 @@ private:
             }
             std::memcpy(&word, &bits, 4);
         }
-        return M;
+        // The controls, fractions of the bounds the walk computes from the
+        // final table: an entry's (child_bound), a brick's M, the node's M
+        auto brick_M = [&](uint32_t b) { return m_out.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b]; };
+        for (uint32_t w = 0; w < nanovdb_drjit::LOWER_ENTRY_COUNT / 4; ++w) {
+            uint32_t fractions, bits = 0;
+            std::memcpy(&fractions, &m_out.values[slot + nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT + w], 4);
+            for (uint32_t k = 0; k < 4; ++k) {
+                const uint32_t n = 4 * w + k;
+                const uint32_t b = nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
+                                                           uint32_t((n >> 4) & 15) << 3,
+                                                           uint32_t(n & 15) << 3);
+                const float bound = nanovdb_drjit::child_bound(brick_M(b), (fractions >> (8 * k)) & 255u);
+                bits |= nanovdb_drjit::control_bits<4>(bound, float(m_entry_control[n].mean),
+                                                       m_entry_control[n].lo) << (8 * k);
+            }
+            put_bits(slot + nanovdb_drjit::LOWER_ENTRY_CONTROL_SLOT + w, bits);
+        }
+        for (uint32_t w = 0; w < nanovdb_drjit::LOWER_BRICK_COUNT / 4; ++w) {
+            uint32_t bits = 0;
+            for (uint32_t k = 0; k < 4; ++k) {
+                const uint32_t b = 4 * w + k;
+                bits |= nanovdb_drjit::control_bits<4>(brick_M(b), float(bricks[b].mean), bricks[b].lo)
+                        << (8 * k);
+            }
+            put_bits(slot + nanovdb_drjit::LOWER_BRICK_CONTROL_SLOT + w, bits);
+        }
+        put_bits(slot + nanovdb_drjit::LOWER_CONTROL_SLOT,
+                 nanovdb_drjit::control_bits<16>(m_out.values[slot], float(control.mean), control.lo));
+        return { M, control };
     }
 
     /// An internal node's M, R (raised over every parent that reaches it) and m
@@ -334,7 +430,7 @@ private:
                                [&](const int32_t n[3], const Layer sel[3]) {
                                    uint32_t covering;
                                    if (!m_view.tile_of(n, covering))
-                                       layer_max(self, sel, m);
+                                       layer_extreme(self, sel, m);
                                });
         }
         m_out.values[m_out.layout.background_slot] = m;
@@ -348,6 +444,7 @@ private:
     float m_background = 0.f;
     std::vector<float> m_lower_min, m_lower_max, m_upper_min, m_upper_max; ///< no ring
     std::vector<float> m_entry = std::vector<float>(nanovdb_drjit::LOWER_ENTRY_COUNT); ///< lower(): its entries' bounds
+    std::vector<Control> m_entry_control = std::vector<Control>(nanovdb_drjit::LOWER_ENTRY_COUNT); ///< ... and controls
     NodeMajorants m_out;
 };
 

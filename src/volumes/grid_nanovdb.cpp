@@ -623,15 +623,15 @@ public:
         return r;
     }
 
-    Walk walk_begin(const WalkRay &r, const Float &tmin, const Float &tmax,
-                    Mask active) const override {
+    Walk walk_begin(const WalkRay &r, const Float &tmin, const Float &tmax, Mask active,
+                    bool controls) const override {
         return m_sampler.walk_begin(Array3f(r.origin), Array3f(r.direction), tmin, tmax,
-                                    r.coarse_limit, active);
+                                    r.coarse_limit, active, controls);
     }
 
-    Mask walk_advance(Walk &walk, const WalkRay &r, Mask active) const override {
+    Mask walk_advance(Walk &walk, const WalkRay &r, Mask active, bool controls) const override {
         return m_sampler.walk_advance(walk, Array3f(r.origin), Array3f(r.direction),
-                                      r.coarse_limit, active);
+                                      r.coarse_limit, active, controls);
     }
 
     MI_DECLARE_CLASS(NanoVDBVolume)

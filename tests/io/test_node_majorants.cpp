@@ -383,5 +383,111 @@ TEST_CASE("node majorants: the bytes stay far below the grid's") {
     const nio::NodeMajorants maj = nio::node_majorants(v);
     MESSAGE("noisy_cloud x2: ", maj.bytes(), " bytes of majorants, grid ", cloud.size(),
             " bytes: ", 100.0 * double(maj.bytes()) / double(cloud.size()), " %");
-    CHECK(double(maj.bytes()) <= 0.01 * double(cloud.size()));
+    // With the controls of residual ratio tracking (issue 34: "a few % of
+    // the grid's bytes"): 1.80 % here, 0.96 % without them
+    CHECK(double(maj.bytes()) <= 0.03 * double(cloud.size()));
+}
+
+namespace {
+
+/// The controls of a grid's lower nodes, their bricks and their entries
+/// (majorant_table.h) against NanoVDB's accessor: c within half a step
+/// (1/15 or 1/65535 of the cell's bound) of the mean of the cell's voxels
+/// (NaN as 0, clamped to [0, bound]), L at most the smallest value of the
+/// cell's ringed region and within one step below it
+void check_controls(const std::string &name, const Handle &h, uint32_t max_lowers) {
+    const nanovdb::FloatGrid &grid = *h.grid<float>();
+    const nio::ValidatedGrid v = validate_handle(h, name);
+    const nio::NodeMajorants maj = nio::node_majorants(v);
+    const auto &L = maj.layout;
+    const auto &tree = grid.tree();
+    const Origins origins(grid);
+    auto acc = grid.getAccessor();
+    size_t cells = 0, mismatches = 0;
+    /// The mean over [o, o + D) and the min over [o - 1, o + D]
+    auto region = [&](const nanovdb::Coord &o, int32_t D) {
+        double sum = 0.0;
+        float lo = std::numeric_limits<float>::infinity();
+        for (int32_t x = -1; x <= D; ++x)
+            for (int32_t y = -1; y <= D; ++y)
+                for (int32_t z = -1; z <= D; ++z) {
+                    const float val = acc.getValue(o + nanovdb::Coord(x, y, z));
+                    if (std::isnan(val))
+                        continue;
+                    lo = std::min(lo, val);
+                    if (x >= 0 && y >= 0 && z >= 0 && x < D && y < D && z < D && std::isfinite(val))
+                        sum += val;
+                }
+        return std::make_pair(sum / (double(D) * D * D), lo);
+    };
+    auto check = [&](float bound, uint32_t bits, uint32_t step_bits,
+                     std::pair<double, float> want, const std::string &what) {
+        ++cells;
+        if (!(bound > 0.f) || std::isinf(bound)) {
+            if (bits != 0 && ++mismatches <= 8) {
+                INFO(name << ": " << what << ": bound " << bound << ", bits " << bits);
+                CHECK(bits == 0);
+            }
+            return;
+        }
+        const auto [c, lo] = step_bits == 4 ? nanovdb_drjit::control_of<4>(bound, bits)
+                                            : nanovdb_drjit::control_of<16>(bound, bits);
+        const double step = double(bound) / double((1u << step_bits) - 1u), eps = 1e-6 * bound;
+        const double mean = std::clamp(want.first, 0.0, double(bound));
+        const double min = std::clamp(double(want.second), 0.0, double(bound));
+        const bool c_ok = std::fabs(double(c) - mean) <= 0.5 * step + eps;
+        const bool lo_ok = double(lo) <= min + eps && double(lo) >= std::min(min, mean) - step - eps;
+        if (!(c_ok && lo_ok && lo <= c) && ++mismatches <= 8) {
+            INFO(name << ": " << what << ": control " << c << " (mean " << mean << "), lower bound "
+                      << lo << " (ringed min " << min << "), bound " << bound);
+            CHECK((c_ok && lo_ok && lo <= c));
+        }
+    };
+    const auto *lower = tree.getFirstNode<1>();
+    for (uint32_t i = 0; i < tree.nodeCount(1) && i < max_lowers; ++i) {
+        const nanovdb::Coord o = origins.of.at(&lower[i]);
+        if (!ring_in_range(o, 128))
+            continue;
+        const uint32_t slot = L.lower_slot + nanovdb_drjit::LOWER_SLOTS * i;
+        auto word = [&](uint32_t s) {
+            uint32_t w;
+            std::memcpy(&w, &maj.values[slot + s], 4);
+            return w;
+        };
+        for (uint32_t e = 0; e < 4096; ++e) {
+            const nanovdb::Coord eo = entry_origin(o, e, 4, 3);
+            const uint32_t b = nanovdb_drjit::brick_of(uint32_t(eo[0] - o[0]), uint32_t(eo[1] - o[1]),
+                                                       uint32_t(eo[2] - o[2]));
+            const float M_b = maj.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b];
+            const float bound = nanovdb_drjit::child_bound(
+                M_b, (word(nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT + e / 4) >> (8 * (e % 4))) & 255u);
+            check(bound, (word(nanovdb_drjit::LOWER_ENTRY_CONTROL_SLOT + e / 4) >> (8 * (e % 4))) & 255u,
+                  4, region(eo, 8), "lower " + std::to_string(i) + " entry " + std::to_string(e));
+        }
+        for (uint32_t b = 0; b < 64; ++b) {
+            const nanovdb::Coord bo = o + nanovdb::Coord(int32_t(b >> 4) * 32, int32_t((b >> 2) & 3) * 32,
+                                                         int32_t(b & 3) * 32);
+            check(maj.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b],
+                  (word(nanovdb_drjit::LOWER_BRICK_CONTROL_SLOT + b / 4) >> (8 * (b % 4))) & 255u, 4,
+                  region(bo, 32), "lower " + std::to_string(i) + " brick " + std::to_string(b));
+        }
+        check(maj.values[slot], word(nanovdb_drjit::LOWER_CONTROL_SLOT), 16, region(o, 128),
+              "lower " + std::to_string(i));
+    }
+    MESSAGE(name, ": ", cells, " cells' controls checked; ", mismatches, " mismatches");
+    CHECK(cells > 0);
+    CHECK(mismatches == 0);
+}
+
+} // namespace
+
+TEST_CASE("node controls: the means and ringed minima of their regions") {
+    static std::vector<std::pair<std::string, Handle>> generated;
+    if (generated.empty())
+        for (const char *g : { "fog_sphere", "noisy_cloud", "lower_tiles", "upper_tiles",
+                               "nonzero_background" })
+            generated.emplace_back(g, nvdb_test::make_nano_grid(g));
+    for (const auto &[name, handle] : generated) {
+        SUBCASE(name.c_str()) { check_controls(name, handle, 4); }
+    }
 }
