@@ -4,7 +4,7 @@ flights, phase and light sampling).
 
     python3 bench/variance_split.py [FILE.vdb|.nvdb ...] [--variant llvm_ad_rgb]
         [--filter stochastic_trilinear] [--res 128] [--spp 4] [--renders 24]
-        [--estimates 1 16] [--max-depth 64] [--build build]
+        [--estimates 1 16] [--transmittance ratio residual] [--max-depth 64] [--build build]
         [--out bench/results/variance_split.md]
 
 The scene is nanovdb-render's for the file (nanovdb_mitsuba.scene.framed_scene:
@@ -17,7 +17,9 @@ the renders, summed over the image relative to the image's squared mean
 (a relative variance per sample, V(M)), and the warm time per sample.
 
 With independent estimates, V(M) = V_rest + V_shadow / M, so two values of
-M give both parts: V_shadow = (V(1) - V(M)) M / (M - 1). The cost of an
+M give both parts: V_shadow = (V(1) - V(M)) M / (M - 1). Each of
+--transmittance (volpathlocal's shadow-ray estimator: ratio tracking or
+residual ratio tracking) gets its own rows and split. The cost of an
 estimator at equal error is V x time (lower is better). A measurement, not
 a test: no target is asserted.
 """
@@ -42,10 +44,11 @@ def measure(spec):
     dr, mi = mitsuba_for(spec["variant"], spec["build"])
     from nanovdb_mitsuba.scene import framed_scene
     rows = []
-    for m in spec["estimates"]:
+    for estimator, m in [(e, m) for e in spec["transmittance"] for m in spec["estimates"]]:
         desc, info = framed_scene(mi, spec["file"], res=spec["res"], spp=spec["spp"],
                                   filter_type=spec["filter"])
         desc["integrator"]["shadow_estimates"] = m
+        desc["integrator"]["transmittance"] = estimator
         desc["integrator"]["max_depth"] = spec["max_depth"]
         desc["sensor"]["film"]["rfilter"] = {"type": "box"}  # (pixels independent)
         scene = mi.load_dict(desc)
@@ -63,7 +66,8 @@ def measure(spec):
         var_sample = a.var(axis=0, ddof=1) * spec["spp"]  # of one sample
         rel_var = float(var_sample.sum() / max(np.square(mean).sum(), 1e-30))
         t_spp = float(np.median(seconds)) / spec["spp"]
-        rows.append(dict(estimates=m, rel_var=rel_var, seconds_per_spp=t_spp,
+        rows.append(dict(transmittance=estimator, estimates=m, rel_var=rel_var,
+                         seconds_per_spp=t_spp,
                          mean=float(mean.mean()), scale=info["scale"]))
     return dict(rows=rows)
 
@@ -89,6 +93,8 @@ def main(argv=None):
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--renders", type=int, default=24)
     ap.add_argument("--estimates", type=int, nargs="+", default=[1, 16])
+    ap.add_argument("--transmittance", nargs="+", default=["ratio", "residual"],
+                    choices=["ratio", "residual"])
     ap.add_argument("--max-depth", type=int, default=64,
                     help="the integrator's max_depth (1: what the camera ray sees through "
                          "the medium alone; 2: and single scattering)")
@@ -96,23 +102,26 @@ def main(argv=None):
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     lines = [f"`python3 bench/variance_split.py {' '.join(sys.argv[1:])}`", "",
-             "| file | shadow_estimates | relative variance per sample | s per spp | "
-             "cost (V x s) | mean |", "|---|---|---|---|---|---|"]
+             "| file | transmittance | shadow_estimates | relative variance per sample | "
+             "s per spp | cost (V x s) | mean |", "|---|---|---|---|---|---|---|"]
     summary = []
     for f in args.files:
         spec = dict(file=os.path.abspath(f), variant=args.variant, filter=args.filter,
                     res=args.res, spp=args.spp, renders=args.renders,
-                    estimates=args.estimates, build=args.build, max_depth=args.max_depth)
+                    estimates=args.estimates, build=args.build, max_depth=args.max_depth,
+                    transmittance=args.transmittance)
         rows = harness.run_child("variance_split:measure", spec)["rows"]
         name = os.path.basename(f)
         for r in rows:
-            lines.append(f"| {name} | {r['estimates']} | {r['rel_var']:.4g} | "
+            lines.append(f"| {name} | {r['transmittance']} | {r['estimates']} | {r['rel_var']:.4g} | "
                          f"{r['seconds_per_spp']:.4g} | {r['rel_var'] * r['seconds_per_spp']:.4g} "
                          f"| {r['mean']:.4g} |")
-        s = split(rows)
-        if s:
-            summary.append(f"- {name}: shadow rays {s['shadow']:.4g} ({100 * s['share']:.0f} % of "
-                           f"the variance at M = 1), the rest {s['rest']:.4g} (from M = 1 and {s['m']})")
+        for estimator in args.transmittance:
+            s = split([r for r in rows if r["transmittance"] == estimator])
+            if s:
+                summary.append(f"- {name}, {estimator}: shadow rays {s['shadow']:.4g} "
+                               f"({100 * s['share']:.0f} % of the variance at M = 1), the rest "
+                               f"{s['rest']:.4g} (from M = 1 and {s['m']})")
     text = "\n".join(lines + [""] + summary) + "\n"
     print(text)
     if args.out:

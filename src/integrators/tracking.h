@@ -373,16 +373,20 @@ template <typename Float, typename Spectrum> struct Tracking {
      * fewer lookups. A stochastic filter's lookup is an unbiased estimate
      * of mu_t, independent per collision, and the factor is linear in it,
      * so the estimate stays unbiased. Russian roulette ends an estimate
-     * that has fallen below RESIDUAL_RR (1e-3: at a shadow ray's median
-     * transmittance of ~0.04 on real clouds it adds ~2.5 % to the
-     * estimate's second moment at most), for stiff media.
+     * that has fallen below RESIDUAL_RR (it adds at most RESIDUAL_RR x T
+     * to the estimate's second moment): without it, a flight goes on to
+     * the end of the ray, where ratio tracking often stops at a weight of
+     * 0. The threshold was chosen on the image's variance x time
+     * (bench/variance_split.py, PERF_LOG section 40): 1e-3, 0.02, 0.1,
+     * 0.3 and 1 gave 1.04, 1.01, 0.92, 0.88 and 1.05 of ratio tracking's
+     * on the smoke, 1.00, 0.89, 0.96, 0.90, 1.09 on a generated cloud.
      *
      * estimates > 1: the mean of that many independent estimates (a
      * measurement of the shadow rays' share of the variance:
      * volpathlocal's shadow_estimates)
      */
     /// Residual ratio tracking's Russian roulette threshold (see ratio_tracking)
-    static constexpr float RESIDUAL_RR = 1e-3f;
+    static constexpr float RESIDUAL_RR = 0.3f;
 
     static std::pair<UnpolarizedSpectrum, UInt32>
     ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
@@ -408,11 +412,12 @@ template <typename Float, typename Spectrum> struct Tracking {
                     // Russian roulette on the estimate so far, tr x exp(-the
                     // controls' depth so far): below RESIDUAL_RR it goes on
                     // with probability estimate / RESIDUAL_RR, divided by it.
-                    // Unbiased; it ends flights whose control alone has
-                    // absorbed them (a dense cell whose ring reaches empty
-                    // space has L = 0, and so a rate of c: without it, a
-                    // density of 1e6 would take ~1e6 collisions per unit of
-                    // length, where ratio tracking stops at its first)
+                    // Unbiased; it ends flights that have little left to
+                    // carry, and those whose control alone has absorbed
+                    // them (a dense cell whose ring reaches empty space has
+                    // L = 0, and so a rate of c: without it, a density of
+                    // 1e6 would take ~1e6 collisions per unit of length,
+                    // where ratio tracking stops at its first)
                     Float w = dr::max(tr_) * dr::exp(-f_.control_depth);
                     Mask low = hit && (w < RESIDUAL_RR);
                     if (dr::any_or<true>(low)) {
