@@ -292,7 +292,8 @@ private:
         Control c;
         c.mean = std::isfinite(v) ? v : 0.0;
         c.lo = std::isnan(v) || v == kNone ? std::numeric_limits<float>::infinity() : v;
-        ring<false>(level, o, c.lo);
+        if (c.lo > 0.f) // (a lower bound is >= 0: the ring cannot matter)
+            ring<false>(level, o, c.lo);
         return c;
     }
 
@@ -323,8 +324,9 @@ private:
                 lo = m_grid.leaf_min()[i];
                 ring(0, eo, r);
                 raise(m_out.values[m_out.layout.leaf_slot(uint32_t(leaf / 4))], r);
-                m_entry_control[n] = { leaf_mean(leaf), lo };
-                ring<false>(0, eo, m_entry_control[n].lo);
+                m_entry_control[n] = { m_grid.leaf_max()[i] > 0.f ? leaf_mean(leaf) : 0.0, lo };
+                if (lo > 0.f) // (a lower bound is >= 0: the ring cannot matter)
+                    ring<false>(0, eo, m_entry_control[n].lo);
             } else {
                 const float v = start(bound_at(m_view.entry(1, node, n)));
                 r = lo = v;
