@@ -5,6 +5,7 @@ Cycles and in volpathlocal, error against time for each.
     python3 bench/peers/cycles.py [FILE.vdb ...] [--grid density] [--res 128]
         [--spp 1 2 4 8 16 32] [--ref-spp 1024] [--step-rates 1 0.1]
         [--filter stochastic_trilinear] [--variant llvm_ad_rgb] [--threads 2]
+        [--transmittance residual|ratio] [--build build]
         [--out bench/results/peers]
 
 Without files: the shared smoke and the generator's cloud. Both renderers
@@ -66,6 +67,7 @@ def scene_and_renders(spec):
     desc, info = framed_scene(mi, spec["file"], grid=spec["grid"], res=spec["res"], spp=1,
                               filter_type=spec["filter"])
     desc["integrator"]["max_depth"] = spec["max_depth"]
+    desc["integrator"]["transmittance"] = spec.get("transmittance", "residual")
     desc["sensor"]["film"]["rfilter"] = {"type": "box"}
     sun, sky = desc["sun"], desc["sky"]
     out = dict(camera=dict(origin=info["camera"]["origin"], target=info["camera"]["target"],
@@ -160,6 +162,7 @@ def run_file(path, args, workdir):
     ours = harness.run_child("peers.cycles:scene_and_renders", dict(
         file=os.path.abspath(path), grid=args.grid, res=args.res, filter=args.filter,
         variant=args.variant, max_depth=args.max_depth, threads=args.threads,
+        build=args.build, transmittance=args.transmittance,
         renders=ours_renders), home=os.path.join(workdir, "home"))
     base = dict(file=os.path.abspath(path), grid=args.grid, scale=ours["scale"],
                 albedo=ours["albedo"], camera=ours["camera"], sun=ours["sun"], sky=ours["sky"],
@@ -244,7 +247,8 @@ def figure(row, out):
 def report(rows, args, out):
     lines = ["# Peer benchmark: Blender Cycles and volpathlocal (issue 34)", "",
              f"`python3 bench/peers/cycles.py {' '.join(sys.argv[1:])}`", "",
-             f"{args.variant}, `{args.filter}`, {args.threads} threads, {args.res}², max_depth "
+             f"{args.variant}, `{args.filter}`, transmittance `{args.transmittance}`, "
+             f"{args.threads} threads, {args.res}², max_depth "
              f"{args.max_depth}; references at {args.ref_spp} spp; bench/peers/cycles.py says "
              "how.", ""]
     for row in rows:
@@ -291,6 +295,10 @@ def main():
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--max-depth", type=int, default=64)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--transmittance", default="residual", choices=["residual", "ratio"],
+                    help="volpathlocal's shadow-ray estimator")
+    ap.add_argument("--build", default=os.path.join(ROOT, "build"),
+                    help="the build whose plugins render ours")
     ap.add_argument("--out", default=os.path.join(BENCH, "results", "peers"))
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)

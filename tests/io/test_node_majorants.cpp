@@ -137,13 +137,22 @@ struct Counts {
     size_t leaves = 0, lowers = 0, uppers = 0, tiles = 0, entries = 0, mismatches = 0;
 };
 
+/// A test grid, validated, with its node majorants and its nodes' origins
+struct Built {
+    const nanovdb::FloatGrid &grid;
+    const nio::ValidatedGrid v;
+    const nio::NodeMajorants maj;
+    const Origins origins;
+    Built(const std::string &name, const Handle &h)
+        : grid(*h.grid<float>()), v(validate_handle(h, name)), maj(nio::node_majorants(v)),
+          origins(grid) {}
+};
+
 void check_grid(const std::string &name, const Handle &h, size_t max_uppers_with_R) {
-    const nanovdb::FloatGrid &grid = *h.grid<float>();
-    const nio::ValidatedGrid v = validate_handle(h, name);
-    const nio::NodeMajorants maj = nio::node_majorants(v);
+    const Built built(name, h);
+    const auto &[grid, v, maj, origins] = built;
     const auto &L = maj.layout;
     const auto &tree = grid.tree();
-    const Origins origins(grid);
     Counts n;
     auto check = [&](float got, float want, const std::string &what) {
         if (got != want && ++n.mismatches <= 8) {
@@ -396,12 +405,10 @@ namespace {
 /// (NaN as 0, clamped to [0, bound]), L at most the smallest value of the
 /// cell's ringed region and within one step below it
 void check_controls(const std::string &name, const Handle &h, uint32_t max_lowers) {
-    const nanovdb::FloatGrid &grid = *h.grid<float>();
-    const nio::ValidatedGrid v = validate_handle(h, name);
-    const nio::NodeMajorants maj = nio::node_majorants(v);
+    const Built built(name, h);
+    const auto &[grid, v, maj, origins] = built;
     const auto &L = maj.layout;
     const auto &tree = grid.tree();
-    const Origins origins(grid);
     auto acc = grid.getAccessor();
     size_t cells = 0, mismatches = 0;
     /// The mean over [o, o + D) and the min over [o - 1, o + D]
