@@ -36,6 +36,12 @@
     keep their precision far from the index origin; absolute coordinates
     wrap around int32 as the lookups' do.
 
+    With `controls` (residual ratio tracking, src/integrators/tracking.h),
+    each cell also gets its control and lower bound from the table
+    (majorant_table.h): one more word per step inside a lower node (the
+    entry's, brick's or node's), one per upper node above it. A walk that
+    does not ask traces none of it.
+
     A step that stays in the lower node of the previous step does not go
     back to the root: the walk keeps that node (and its M and R) in its
     state. Everything is a mask and a select: one code path for scalar,
