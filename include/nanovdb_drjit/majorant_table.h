@@ -48,8 +48,8 @@
     bound as the walk computes it (an entry's: child_bound, a brick's M,
     the node's M), so the table's scale (spectral factor, 1 + 2^-20) needs
     no rewrite: an entry's and a brick's in one byte (c in the high four
-    bits, rounded; L in the low four, rounded down: control_byte), a node's
-    in one word (16 bits each: control_word). Upper tiles take their value
+    bits, rounded; L in the low four, rounded down), a node's in one word
+    (16 bits each): control_bits<4 or 16> writes them, control_of reads them. Upper tiles take their value
     as c and 0 as L; root tiles and the background 0 and 0 (ratio tracking
     there). Residual tracking samples the cells at rate max(M - c, c - L),
     which is 0 only where M = c = L, i.e. where the value is constant.

@@ -377,7 +377,7 @@ template <typename Float, typename Spectrum> struct Tracking {
      * to the estimate's second moment): without it, a flight goes on to
      * the end of the ray, where ratio tracking often stops at a weight of
      * 0. The threshold was chosen on the image's variance x time
-     * (bench/variance_split.py, PERF_LOG section 40): 1e-3, 0.02, 0.1,
+     * (bench/variance_split.py, PERF_LOG section 41): 1e-3, 0.02, 0.1,
      * 0.3 and 1 gave 1.04, 1.01, 0.92, 0.88 and 1.05 of ratio tracking's
      * on the smoke, 1.00, 0.89, 0.96, 0.90, 1.09 on a generated cloud.
      *

@@ -342,7 +342,8 @@ private:
             raise(brick[b], r);
             lower_to(brick_lo[b], lo);
             m_entry[n] = r;
-            add(bricks[b], m_entry_control[n], nanovdb_drjit::LOWER_ENTRY_COUNT / nanovdb_drjit::LOWER_BRICK_COUNT);
+            add(bricks[b], m_entry_control[n],
+                nanovdb_drjit::LOWER_ENTRY_COUNT / nanovdb_drjit::LOWER_BRICK_COUNT);
             add(control, m_entry_control[n], nanovdb_drjit::LOWER_ENTRY_COUNT);
         }
         const size_t i = index(1, node);
@@ -362,41 +363,33 @@ private:
             std::memcpy(&m_out.values[slot + nanovdb_drjit::LOWER_BRICK_FRACTION_SLOT + w], &bits, 4);
         }
         // The entries' bounds, 8-bit fractions of their brick's (final) M,
-        // raised: a fraction of a smaller M stays a bound under a larger one
+        // raised: a fraction of a smaller M stays a bound under a larger one;
+        // and their controls, fractions of the bound the walk computes from
+        // that fraction (child_bound)
+        auto brick_M = [&](uint32_t b) {
+            return m_out.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b];
+        };
         for (uint32_t w = 0; w < nanovdb_drjit::LOWER_ENTRY_COUNT / 4; ++w) {
             float &word = m_out.values[slot + nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT + w];
-            uint32_t bits;
+            uint32_t bits, controls = 0;
             std::memcpy(&bits, &word, 4);
             for (uint32_t k = 0; k < 4; ++k) {
                 const uint32_t n = 4 * w + k;
                 const uint32_t b = nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
                                                            uint32_t((n >> 4) & 15) << 3,
                                                            uint32_t(n & 15) << 3);
-                const uint32_t q = std::max(
-                    (bits >> (8 * k)) & 255u,
-                    nanovdb_drjit::child_fraction(
-                        m_out.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b], m_entry[n]));
+                const uint32_t q = std::max((bits >> (8 * k)) & 255u,
+                                            nanovdb_drjit::child_fraction(brick_M(b), m_entry[n]));
                 bits = (bits & ~(255u << (8 * k))) | (q << (8 * k));
+                controls |= nanovdb_drjit::control_bits<4>(nanovdb_drjit::child_bound(brick_M(b), q),
+                                                           float(m_entry_control[n].mean),
+                                                           m_entry_control[n].lo)
+                            << (8 * k);
             }
             std::memcpy(&word, &bits, 4);
+            put_bits(slot + nanovdb_drjit::LOWER_ENTRY_CONTROL_SLOT + w, controls);
         }
-        // The controls, fractions of the bounds the walk computes from the
-        // final table: an entry's (child_bound), a brick's M, the node's M
-        auto brick_M = [&](uint32_t b) { return m_out.values[slot + nanovdb_drjit::LOWER_BRICK_M_SLOT + b]; };
-        for (uint32_t w = 0; w < nanovdb_drjit::LOWER_ENTRY_COUNT / 4; ++w) {
-            uint32_t fractions, bits = 0;
-            std::memcpy(&fractions, &m_out.values[slot + nanovdb_drjit::LOWER_ENTRY_FRACTION_SLOT + w], 4);
-            for (uint32_t k = 0; k < 4; ++k) {
-                const uint32_t n = 4 * w + k;
-                const uint32_t b = nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
-                                                           uint32_t((n >> 4) & 15) << 3,
-                                                           uint32_t(n & 15) << 3);
-                const float bound = nanovdb_drjit::child_bound(brick_M(b), (fractions >> (8 * k)) & 255u);
-                bits |= nanovdb_drjit::control_bits<4>(bound, float(m_entry_control[n].mean),
-                                                       m_entry_control[n].lo) << (8 * k);
-            }
-            put_bits(slot + nanovdb_drjit::LOWER_ENTRY_CONTROL_SLOT + w, bits);
-        }
+        // The bricks' and the node's controls, fractions of their M
         for (uint32_t w = 0; w < nanovdb_drjit::LOWER_BRICK_COUNT / 4; ++w) {
             uint32_t bits = 0;
             for (uint32_t k = 0; k < 4; ++k) {
