@@ -101,6 +101,9 @@ CONFIGS = ["off", "on"]
 WARNINGS = {"negative_sample": "Invalid sample value",
             "emission_left_out": "renders the medium without its emission"}
 PLUGINS = ["nanovdbvolume", "volpathlocal", "emissiveheterogeneous"]
+# The region of each pixel (region_ids): 0 the sky, then the scene's shapes
+REGION_IDS = {"floor": 1, "cube": 2}
+REGIONS = ["fire", "floor", "smoke"]
 
 # The media of both cases: an explosion's smoke is dark (pbrt-v4's explosion
 # scene: sigma_a = sigma_s, albedo 0.5), optical depth up to ~10 across the
@@ -284,6 +287,7 @@ def child(spec):
         cres["density"] = {k: facts[k] for k in ("index_dims", "local_majorant_ratio",
                                                  "grid_bytes", "max")}
         if spec["mode"] == "reference":
+            images[f"{case['name']}__regions"] = region_ids(mi, case, spec)
             for config in spec["configs"]:
                 passes, t_total = [], 0.0
                 for k in range(spec["ref_passes"]):
@@ -356,6 +360,48 @@ def child(spec):
     return out
 
 
+def region_ids(mi, case, spec):
+    """What each pixel's camera ray meets first, per sensor [S, H, W]: 0 the
+    sky, else REGION_IDS of the shape. From the depth of each shape alone
+    (Mitsuba's `aov` integrator, 0 where the ray misses), one sample at the
+    pixel centre (a box filter)"""
+    depths = {}
+    for name in REGION_IDS:
+        desc = scene_dict(mi, case, "off", spec["res"], 1, spec["sensors"])
+        desc["integrator"] = {"type": "aov", "aovs": "dd:depth"}
+        for k in list(desc):
+            if k in REGION_IDS and k != name:
+                del desc[k]
+            elif k.startswith("sensor_"):
+                desc[k]["film"]["rfilter"] = {"type": "box"}
+        scene = mi.load_dict(desc)
+        d = np.stack([np.asarray(mi.render(scene, sensor=i, spp=1, seed=0))[..., 0]
+                      for i in range(spec["sensors"])]).astype(np.float64)
+        depths[name] = np.where(d > 0, d, np.inf)
+    ids = np.zeros(next(iter(depths.values())).shape, dtype=np.int8)
+    nearest = np.full(ids.shape, np.inf)
+    for name, d in depths.items():
+        closer = d < nearest
+        ids[closer], nearest[closer] = REGION_IDS[name], d[closer]
+    return ids
+
+
+def region_masks(ids, ref_on, fire_share=0.03):
+    """The issue's regions: the fire seen directly (the brightest
+    `fire_share` of each sensor's pixels in the `on` reference, by
+    luminance), the floor and the cube (the medium's box: the smoke, and
+    what is seen through it) outside those; [S, H, W, 3] masks"""
+    import metrics
+    luma = ref_on.astype(np.float64) @ metrics.LUMA
+    fire = np.zeros(ids.shape, dtype=bool)
+    for s in range(ids.shape[0]):
+        cut = np.quantile(luma[s], 1.0 - fire_share)
+        fire[s] = luma[s] >= cut
+    masks = {"fire": fire, "floor": (ids == REGION_IDS["floor"]) & ~fire,
+             "smoke": (ids == REGION_IDS["cube"]) & ~fire}
+    return {k: np.repeat(m[..., None], ref_on.shape[-1], axis=-1) for k, m in masks.items()}
+
+
 def run_child(spec, work, tag):
     """One variant's child (child()): its measurements and images"""
     spec = dict(spec, out_npz=os.path.join(work, tag + ".npz"))
@@ -391,7 +437,7 @@ def references(a, case_list, work):
     for case in case_list:
         # (the scene's code and parameters, the grids' files and the plugins)
         key = (f"{case['name']}__r{a.res}x{a.sensors}__s{a.ref_spp}x{a.ref_passes}__"
-               f"{a.ref_variant}__{source_key(volumes, sensor, scene_dict, MEDIUM, FIRE)}__"
+               f"{a.ref_variant}__{source_key(volumes, sensor, scene_dict, region_ids, MEDIUM, FIRE)}__"
                f"{file_key([case['file']] + sos)}")
         path = os.path.join(a.data, "refs", key + ".npz")
         case["ref_path"] = path
@@ -399,6 +445,7 @@ def references(a, case_list, work):
             with np.load(path) as z:
                 refs[case["name"]] = {c: (z[f"{c}__mean"], z[f"{c}__var_of_mean"],
                                           float(z[f"{c}__time_s"]), True) for c in CONFIGS}
+                case["regions"] = z["regions"]
         else:
             missing.append(case)
     if missing:
@@ -410,7 +457,8 @@ def references(a, case_list, work):
         out, imgs = run_child(spec, work, "reference")
         for case in missing:
             n = case["name"]
-            d = {}
+            d = {"regions": imgs[f"{n}__regions"]}
+            case["regions"] = d["regions"]
             for c in CONFIGS:
                 d[f"{c}__mean"] = imgs[f"{n}__{c}__mean"]
                 d[f"{c}__var_of_mean"] = imgs[f"{n}__{c}__var_of_mean"]
@@ -495,7 +543,8 @@ def main():
     rows, errors = [], []
     for variant in a.variants:
         scalar = variant.startswith("scalar")
-        spec = {"mode": "measure", "variant": variant, "build": a.build, "cases": case_list,
+        spec = {"mode": "measure", "variant": variant, "build": a.build,
+                "cases": [{k: v for k, v in c.items() if k != "regions"} for c in case_list],
                 "configs": CONFIGS, "res": a.res, "sensors": a.sensors,
                 "spp": a.scalar_spp if scalar else a.spp, "runs": a.runs,
                 "sweep": a.scalar_sweep if scalar else a.sweep,
@@ -516,6 +565,7 @@ def main():
             cpu = cres["warm_cpu_s"]
             cpu_round = [on / off for on, off in zip(cpu["on"], cpu["off"])]
             eff = {}
+            masks = region_masks(case["regions"], refs[n]["on"][0])
             for config in CONFIGS:
                 mean, var, _, _ = refs[n][config]
                 level = float(np.mean(mean))
@@ -525,7 +575,8 @@ def main():
                     raw, corr = metrics.rmse(img, mean, var)
                     e = {"case": n, "variant": variant, "config": config, "spp": pt["spp"],
                          "time_s": pt["time_s"], "rmse": corr, "rmse_raw": raw,
-                         "rel_rmse": corr / level, "ssim": metrics.ssim(img, mean)}
+                         "rel_rmse": corr / level, "ssim": metrics.ssim(img, mean),
+                         "regions": metrics.region_errors(img, mean, var, masks)}
                     errors.append(e)
                     pts.append(e)
                 # Monte Carlo efficiency: relative error^2 x time (median over
@@ -606,7 +657,8 @@ def write_report(a, case_list, refs, measured, rows, errors, notes, started, ela
         json.dump({"command": command, "settings": settings,
                    "started": started.isoformat(), "elapsed_s": elapsed,
                    "references_s": t_refs, "references_cached": refs_cached, "notes": notes,
-                   "cases": [{k: v for k, v in c.items() if k != "ref_path"} for c in case_list],
+                   "cases": [{k: v for k, v in c.items() if k not in ("ref_path", "regions")}
+                             for c in case_list],
                    "reference_times_s": {n: {c: r[2] for c, r in d.items()}
                                          for n, d in refs.items()},
                    "medium": MEDIUM, "fire": FIRE, "rows": rows, "errors": errors,
@@ -670,6 +722,28 @@ def write_report(a, case_list, refs, measured, rows, errors, notes, started, ela
         L.append(f"| {e['case']} | {e['variant']} | {e['config']} | {e['spp']} | "
                  f"{e['time_s']:.3f} | {e['rmse']:.4f} | {e['rel_rmse']:.4f} | "
                  f"{e['ssim']:.4f} |")
+    if any(e.get("regions") for e in errors):
+        L += ["", "### The error by region", "",
+              "Where the error is: *fire*, the brightest 3 % of each sensor's pixels in the "
+              "`on` reference (the fire seen directly); *floor* and *smoke* (the medium's "
+              "box: the smoke, and what is seen through it), the pixels whose camera ray "
+              "first meets the floor or the box, outside the fire (Mitsuba's `aov` "
+              "integrator, shape_index). Per region: the relative RMSE (noise-corrected "
+              "RMSE / the reference's mean there) and its share of the image's squared "
+              "error. The masks are the same for `off` and `on`.", "",
+              "| case | variant | config | spp | " + " | ".join(
+                  f"{r}: rel. RMSE, share" for r in REGIONS) + " |",
+              "|---|---|---|---:|" + "---|" * len(REGIONS)]
+        for e in errors:
+            if not e.get("regions"):
+                continue
+            cells = []
+            for r in REGIONS:
+                g = e["regions"].get(r, {})
+                cells.append("–" if g.get("rel_rmse") is None else
+                             f"{g['rel_rmse']:.3f}, {100 * g['share']:.0f} %")
+            L.append(f"| {e['case']} | {e['variant']} | {e['config']} | {e['spp']} | "
+                     + " | ".join(cells) + " |")
     L += ["", "Efficiency, relative RMSE² × time (median over the sweep; lower is better), "
           "and how much longer `on` needs than `off` to reach the same relative error. The "
           "two are different images: `off` is the dark smoke against a dim sky on a floor "

@@ -88,3 +88,27 @@ def error_at_equal_time(a, b):
         res.update(t=t, ea=math.sqrt(ca / t), eb=math.sqrt(cb / t))
     res["ratio"] = res["ea"] / res["eb"]
     return res
+
+
+def region_errors(img, ref, ref_var_of_mean, regions):
+    """The error by region. regions: {name: boolean mask [S, H, W]} over
+    the images' pixels (every channel counts). Returns {name: {"pixels",
+    "rel_rmse" (the region's noise-corrected RMSE / the reference's mean
+    there), "share" (the region's part of the image's summed squared
+    error, noise-corrected)}}"""
+    d = img.astype(np.float64) - ref.astype(np.float64)
+    sq = d * d - ref_var_of_mean.astype(np.float64)
+    total = float(sq.sum())
+    out = {}
+    for name, m in regions.items():
+        n = int(m.sum())
+        if n == 0:
+            out[name] = {"pixels": 0, "rel_rmse": None, "share": None}
+            continue
+        s = float(sq[m].sum())
+        level = float(ref[m].mean())
+        out[name] = {"pixels": n,
+                     "rel_rmse": math.sqrt(max(s / (n * ref.shape[-1]), 0.0)) / level
+                     if level > 0 else None,
+                     "share": s / total if total > 0 else None}
+    return out
