@@ -213,6 +213,19 @@ public:
     /// (int32 wrap-around, as the VDB index space)
     Coord<UInt32> absolute(const Vector3i &voxel) const;
 
+    // ---- Leaves (emission sampling: src/media/emission_distribution.h) ------
+
+    /// Whether leaf_at and leaf_origin address this grid's leaves: fixed-size
+    /// leaves (every type but FpN)
+    bool leaves_addressable() const;
+
+    /// The leaf (its place in the leaf array) that holds the absolute
+    /// coordinate `ijk`, and where one does (else 0 and false)
+    std::pair<UInt32, Mask> leaf_at(const Coord<UInt32> &ijk, const Mask &active) const;
+
+    /// Leaf `leaf`'s origin (absolute, a multiple of 8 per axis)
+    Coord<UInt32> leaf_origin(const UInt32 &leaf, const Mask &active) const;
+
     // ---- The majorant walk, in cell space (majorant_walk.h) -----------------
 
     /// controls: the walk also gives each cell's control and lower bound

@@ -245,6 +245,40 @@ Float GridSampler<Float>::trilinear(const Vector3f &rel_, const Mask &active) co
     return clamp_to_max(result, max);
 }
 
+template <typename Float> bool GridSampler<Float>::leaves_addressable() const {
+    const layout::GridTypeConstants *c = layout::grid_type_constants(grid_type);
+    return c && grid_type != layout::GRID_TYPE_FPN;
+}
+
+template <typename Float>
+std::pair<typename GridSampler<Float>::UInt32, typename GridSampler<Float>::Mask>
+GridSampler<Float>::leaf_at(const Coord<UInt32> &ijk, const Mask &active) const {
+    const uint32_t leaf_words = layout::grid_type_constants(grid_type)->leaf_size / 4;
+    AddressAndLevel<UInt32> al = layout::visit_value_type(grid_type, [&](auto type) {
+        constexpr uint32_t T = decltype(type)::value;
+        return reader.apply(words(), [&](const auto &buf, const auto &root) {
+            return value_address_and_level<T>(buf, root, ijk, active);
+        });
+    });
+    // Leaves are one array of fixed stride: the value's address is in its leaf
+    const Mask in_leaf = active && al.level == LEVEL_LEAF;
+    const UInt32 leaf = (al.address - majorants.leaf_begin) / leaf_words;
+    return { dr::select(in_leaf, leaf, 0u), in_leaf };
+}
+
+template <typename Float>
+Coord<typename GridSampler<Float>::UInt32>
+GridSampler<Float>::leaf_origin(const UInt32 &leaf, const Mask &active) const {
+    const uint32_t leaf_words = layout::grid_type_constants(grid_type)->leaf_size / 4;
+    // PNanoVDB: pnanovdb_leaf_get_bbox_min, masked to the leaf's origin
+    const UInt32 address = majorants.leaf_begin + leaf * leaf_words + layout::LEAF_OFF_BBOX_MIN / 4;
+    Coord<UInt32> o;
+    for (uint32_t k = 0; k < 3; ++k)
+        o[k] = dr::reinterpret_array<Int32>(read_uint32(words(), UInt32(address + k), active) &
+                                            ~7u);
+    return o;
+}
+
 template <typename Float>
 typename GridSampler<Float>::Vector3i
 GridSampler<Float>::stochastic_voxel(const Vector3f &rel_, const Vector3f &u,

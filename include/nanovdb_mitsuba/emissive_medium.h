@@ -42,6 +42,34 @@ public:
      * that the emission is left out.
      */
     virtual void set_emission_rendered() const = 0;
+
+    // ---- Next-event estimation (issue 35): the emission as a distribution
+    //      of points (src/media/emission_distribution.h)
+
+    /**
+     * Builds the emission's sampling table if it has none for its current
+     * values (host code: the integrator calls it before it renders).
+     * Returns whether the medium can be sampled; where it cannot (zero
+     * power, a grid whose leaves cannot be addressed, a volume that is not
+     * a nanovdbvolume) the medium says why, once.
+     */
+    virtual bool prepare_emission_sampling() const = 0;
+
+    /// What the table holds (the emitted power, in the units of its largest
+    /// channel): chooses among several emissive media
+    virtual double emission_power() const = 0;
+
+    /**
+     * A world point in proportion to what it emits (u and u3 uniform), and
+     * its pdf per unit volume. Only after prepare_emission_sampling()
+     * returned true.
+     */
+    virtual std::pair<Point3f, Float> sample_emission_point(const Float &u, const Point3f &u3,
+                                                            Mask active) const = 0;
+
+    /// The pdf per unit volume that sample_emission_point() gives p (0 where
+    /// it never samples)
+    virtual Float emission_point_pdf(const Point3f &p, Mask active) const = 0;
 };
 
 NAMESPACE_END(mitsuba)

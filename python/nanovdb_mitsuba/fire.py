@@ -69,6 +69,10 @@ FLAME_BRIGHTNESS = 1.0
 # core of usd_density_heat_fog.vdb's fire barely stand out; 0.3 gives a
 # sooty black smoke).
 FIRE_ALBEDO = 0.6
+# What the commands print of how the fire lights its surroundings:
+# volpathlocal's default emission_sampling ("mis": next-event estimation
+# toward the emission, with MIS against the emission that paths collect)
+LIGHTING = "lit by next-event estimation with MIS"
 # Radiance mode's colour: a blackbody at 1800 K in linear sRGB, over its
 # luminance Y (so Y = 1), the slightly negative blue (-0.019, outside the
 # sRGB gamut) clamped to 0. Computed as blackbody_rgb(1800) / Y: the

@@ -285,7 +285,7 @@ def emission_line(plan, rendered=True):
     ok = [e for e in plan["frames"] if e["status"] == "ok"]
     return (head + f'emission grid "{em["grid"]}" in {len(with_grid)} of {len(ok)} frames with '
             f"voxels; one mapping for all frames, from the largest max (frame "
-            f"{em['max_frame']}): {em['summary']}; albedo {plan['albedo']:g}")
+            f"{em['max_frame']}): {em['summary']}; albedo {plan['albedo']:g}; {fire.LIGHTING}")
 
 
 def summary_line(plan):

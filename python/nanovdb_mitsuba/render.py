@@ -177,7 +177,7 @@ def add_emission(mi, scene_dict, path, name, mode, found, filter_type, overrides
         return None
     if not quiet:
         print(f"{path}: emission grids: {listed}; \"{name}\" glows: {summary}; albedo "
-              f"{fire.FIRE_ALBEDO:g}")
+              f"{fire.FIRE_ALBEDO:g}; {fire.LIGHTING}")
     return rendered
 
 

@@ -55,6 +55,27 @@ template <typename Float, typename Spectrum> struct Tracking {
         Float max_majorant;       ///< scale x the largest segment bound
         bool stochastic;          ///< its lookups take random offsets (stochastic filters)
         const Emissive *emissive; ///< the medium's emission (nullptr: it emits none)
+        /// Next-event estimation samples its emission (volpathlocal's
+        /// emission_sampling), choosing it with probability `select`
+        bool nee = false;
+        Float select = 0.f;
+    };
+
+    /**
+     * MIS of the emission a flight collects against next-event estimation
+     * from the path's last scattering vertex (docs/research/issue35_nee.md):
+     * where `on`, the emission at x is weighted by
+     *     p_dir / (p_dir + select pdf(x) |x - origin|^2),
+     * the balance heuristic's weight with a deterministic stand-in (1) for
+     * the flight's probability of reaching x, which next-event estimation
+     * weighs with the complement; `nee_only` gives the flight weight 0
+     * where `on` (next-event estimation alone covers it: tests)
+     */
+    struct EmissionMis {
+        Mask on;
+        Point3f origin;
+        Float dir_pdf;
+        bool nee_only = false;
     };
 
     /// A flight through a tracked medium: the walk, the position t along the
@@ -298,7 +319,8 @@ template <typename Float, typename Spectrum> struct Tracking {
      * so the product stays unbiased.
      */
     static Collision delta_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
-                                    const Float &coarse_depth, Sampler *sampler, Mask active) {
+                                    const Float &coarse_depth, Sampler *sampler, Mask active,
+                                    const EmissionMis &mis) {
         auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
         struct State {
             UnpolarizedSpectrum weight, sigma_s, sigma_t, emitted;
@@ -310,16 +332,26 @@ template <typename Float, typename Spectrum> struct Tracking {
                  Mask(false) };
         Flight f = sample_t_maj(
             k, wr, mint, maxt, sampler, st, DeltaLoop, active,
-            [k, ray, mint](State &s, const Flight &f_, const Float &mu, const Float & /* c */,
-                           Sampler *sampler_, const Mask &hit) {
+            [k, ray, mint, mis](State &s, const Flight &f_, const Float &mu, const Float & /* c */,
+                                Sampler *sampler_, const Mask &hit) {
                 const Float &t = f_.t;
                 Float xi = sampler_->next_1d(hit);
                 MediumInteraction3f mei = interaction_at(k, ray, t, mint);
                 auto [sigma_s, sigma_n, sigma_t] = coefficients(k, mei, sampler_, hit);
                 DRJIT_MARK_USED(sigma_n);
-                if (k.emissive) // (traced only for an emissive medium)
+                if (k.emissive) { // (traced only for an emissive medium)
+                    Float w = 1.f;
+                    if (k.nee) { // (traced only where next-event estimation samples it)
+                        Mask on = hit && mis.on;
+                        Float p_nee = k.select * k.emissive->emission_point_pdf(mei.p, on) *
+                                      dr::squared_norm(mei.p - mis.origin);
+                        Float w_mis = mis.nee_only
+                            ? Float(0.f) : dr::select(p_nee > 0.f, mis.dir_pdf / (mis.dir_pdf + p_nee), 1.f);
+                        w = dr::select(on, w_mis, 1.f);
+                    }
                     dr::masked(s.emitted, hit) += s.weight * (sigma_t - sigma_s) *
-                                                  k.emissive->eval_emission(mei, hit) / mu;
+                                                  k.emissive->eval_emission(mei, hit) * w / mu;
+                }
                 Float p_real = dr::mean(sigma_t) / mu;
                 Mask real = hit && (xi < p_real), null = hit && !real;
                 dr::masked(s.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));

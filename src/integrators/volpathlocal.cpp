@@ -81,6 +81,19 @@ Volumetric path tracer with local majorants (:monosp:`volpathlocal`)
      majorants, as before). The measurement behind the default:
      docs/integrator.md. (Default: ``residual``)
 
+ * - emission_sampling
+   - |string|
+   - How the light of emissive media (``emissiveheterogeneous``) reaches
+     the vertices of a path: ``mis`` (next-event estimation toward the
+     emission, a point sampled in proportion to what it emits and a shadow
+     ray to it, combined by multiple importance sampling with the emission
+     that the path's flights collect; unbiased), ``collisions`` (only the
+     emission the flights collect, as before) or ``nee`` (next-event
+     estimation alone where it applies: for tests; it misses emission that
+     its table does not hold, and its variance is unbounded at vertices
+     inside the emission). See docs/research/issue35_nee.md.
+     (Default: ``mis``)
+
  * - shadow_estimates
    - |int|
    - How many independent estimates of a tracked medium's
@@ -147,7 +160,17 @@ The estimators (for a tracked medium, with majorant :math:`\bar\mu(t)` =
   weights so far times :math:`\sigma_a L_e / \bar\mu`, whose mean is the
   emission the ray collects (pbrt-v4's estimator; tracking.h). An emissive
   medium is always tracked through the walk, whatever
-  ``max_majorant_ratio``.
+  ``max_majorant_ratio``;
+- next-event estimation toward emissive media (``emission_sampling``):
+  from each vertex that samples emitters, a medium chosen by its emitted
+  power, a point :math:`x` of it with density :math:`p(x)` per unit
+  volume (its emission table: the emission grid's leaves cut into blocks
+  of 2³ voxels, weighted by :math:`\sigma_a L_e`), and
+  :math:`f\,\hat T\,\sigma_a L_e\,w / (p\,r^2)`; the emission that the
+  next flight collects at :math:`x` is weighted by :math:`1 - w`, with
+  :math:`w = p r^2 / (p r^2 + p_\text{dir})` (the balance heuristic, with
+  1 in place of the flight's probability of reaching :math:`x`, so that
+  both sides compute the same weight).
 
 .. tabs::
     .. code-tab:: xml
@@ -196,6 +219,16 @@ public:
             Throw("volpathlocal: transmittance must be \"residual\" or \"ratio\", got \"%s\"",
                   estimator);
         m_residual = estimator == "residual";
+        std::string emission = props.get<std::string>("emission_sampling", "mis");
+        if (emission == "mis")
+            m_emission_sampling = EmissionSampling::Mis;
+        else if (emission == "collisions")
+            m_emission_sampling = EmissionSampling::Collisions;
+        else if (emission == "nee")
+            m_emission_sampling = EmissionSampling::Nee;
+        else
+            Throw("volpathlocal: emission_sampling must be \"mis\", \"collisions\" or \"nee\", "
+                  "got \"%s\"", emission);
         m_max_ratio = props.get<ScalarFloat>("max_majorant_ratio", 0.5f);
         if (!(m_max_ratio >= 0.f && m_max_ratio <= 1.f))
             Throw("volpathlocal: max_majorant_ratio must be in [0, 1], got %f", m_max_ratio);
@@ -395,13 +428,20 @@ public:
                     dr::masked(si, intersect) = scene->ray_intersect(ray, intersect);
                 needs_intersection &= !active_medium;
 
-                // volpathlocal: delta tracking up to the nearest surface
+                // volpathlocal: delta tracking up to the nearest surface; the
+                // emission it collects weighed against next-event
+                // estimation from the last scattering vertex (where that
+                // vertex sampled the emissive media: not the camera's, not
+                // after a specular one)
+                typename Tracker::EmissionMis emission_mis{
+                    depth > 0u && !specular_chain, last_scatter_event.p,
+                    last_scatter_direction_pdf, m_emission_sampling == EmissionSampling::Nee };
                 for (const TrackedMedium &k : m_tracked) {
                     Mask in_k = tracked && (medium == MediumPtr(k.medium));
                     if (dr::none_or<false>(in_k))
                         continue; // (scalar variants: not this medium)
                     typename Tracker::Collision c = Tracker::delta_tracking(
-                        k, ray, si.t, m_coarse_depth_var, sampler, in_k);
+                        k, ray, si.t, m_coarse_depth_var, sampler, in_k, emission_mis);
                     dr::masked(mei, in_k) = c.mei;
                     // volpathlocal: an emissive medium's emission along the flight
                     if (k.emissive)
@@ -565,6 +605,34 @@ public:
                 }
             }
 
+            // volpathlocal: next-event estimation toward the emissive media
+            // (issue 35), from the same vertices, with MIS against the
+            // emission their flights collect (tracking.h's EmissionMis)
+            if (m_nee_media && dr::any_or<true>(active_e)) {
+                auto [emitted, d, p_nee] = sample_emissive_media(
+                    mei, si, active_e_medium, active_e_surface, scene, sampler, medium, channel,
+                    ls.tripped, active_e);
+                auto weight = [this](const Float &p_point, const Float &p_dir) {
+                    return dr::select(p_point > 0.f,
+                                      m_emission_sampling == EmissionSampling::Nee
+                                          ? Float(1.f) : p_point / (p_point + p_dir),
+                                      0.f);
+                };
+                if (dr::any_or<true>(active_e_medium)) {
+                    auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, d, active_e_medium);
+                    dr::masked(result, active_e_medium) +=
+                        throughput * phase_val * emitted * weight(p_nee, phase_pdf);
+                }
+                if (dr::any_or<true>(active_e_surface)) {
+                    Vector3f wo = si.to_local(d);
+                    Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e_surface);
+                    bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi);
+                    Float bsdf_pdf = bsdf->pdf(ctx, si, wo, active_e_surface);
+                    dr::masked(result, active_e_surface) +=
+                        throughput * bsdf_val * emitted * weight(p_nee, bsdf_pdf);
+                }
+            }
+
             // volpathlocal: phase sampling, from the medium block above
             if (dr::any_or<true>(act_medium_scatter)) {
                 // ------------------ Phase function sampling -----------------
@@ -632,7 +700,6 @@ public:
         Interaction3f ref_interaction = dr::zeros<Interaction3f>();
         dr::masked(ref_interaction, active_medium) = Interaction3f(mei);
         dr::masked(ref_interaction, active_surface) = Interaction3f(si_ref);
-        Spectrum transmittance(1.0f);
 
         auto [ds, emitter_val] = scene->sample_emitter_direction(ref_interaction, sampler->next_2d(active), false, active);
         dr::masked(emitter_val, ds.pdf == 0.f) = 0.f;
@@ -643,6 +710,97 @@ public:
         }
 
         Ray3f ray = ref_interaction.spawn_ray_to(ds.p);
+        // volpathlocal: the shadow ray's loop in trace_shadow (below), shared
+        // with next-event estimation toward emissive media
+        auto [transmittance_, end_medium] = trace_shadow(ray, si_ref, active_surface, ds, scene,
+                                                         sampler, medium, channel, tripped, active);
+        DRJIT_MARK_USED(end_medium);
+        return { transmittance_ * emitter_val, ds };
+    }
+
+    // volpathlocal: next-event estimation toward the emissive media (issue
+    // 35; docs/research/issue35_nee.md): a medium chosen by its emitted
+    // power, a point x of it by its emission table, the shadow ray to x;
+    // returns T sigma_a(x) Le(x) / (p r^2) (0 unless the shadow ray ends in
+    // that medium), the direction to x, and p r^2 (the solid-angle density,
+    // for MIS), p the point's density per unit volume
+    std::tuple<Spectrum, Vector3f, Float>
+    sample_emissive_media(const MediumInteraction3f &mei, const SurfaceInteraction3f &si_ref,
+                          const Mask &active_medium, const Mask &active_surface,
+                          const Scene *scene, Sampler *sampler, MediumPtr medium,
+                          UInt32 channel, UInt32 &tripped, Mask active) const {
+        Interaction3f ref = dr::zeros<Interaction3f>();
+        dr::masked(ref, active_medium) = Interaction3f(mei);
+        dr::masked(ref, active_surface) = Interaction3f(si_ref);
+        Float u = sampler->next_1d(active);
+        Point2f u2 = sampler->next_2d(active);
+        Point3f u3(u2.x(), u2.y(), sampler->next_1d(active));
+        Point3f x = dr::zeros<Point3f>();
+        Float pdf = 0.f;
+        MediumPtr target = nullptr;
+        Float lo = 0.f;
+        for (size_t i = 0; i < m_tracked.size(); ++i) {
+            const TrackedMedium &k = m_tracked[i];
+            if (!k.nee)
+                continue;
+            Float hi = lo + k.select;
+            Mask pick = active && u >= lo && (u < hi || i + 1 == m_last_nee);
+            if (dr::any_or<true>(pick)) {
+                Float v = dr::minimum((u - lo) / k.select, dr::OneMinusEpsilon<Float>);
+                auto [p, pdf_k] = k.emissive->sample_emission_point(v, u3, pick);
+                dr::masked(x, pick) = p;
+                dr::masked(pdf, pick) = k.select * pdf_k;
+                dr::masked(target, pick) = MediumPtr(k.medium);
+            }
+            lo = hi;
+        }
+        active &= pdf > 0.f;
+        Vector3f d = x - ref.p;
+        Float r2 = dr::squared_norm(d);
+        d *= dr::rsqrt(r2);
+        active &= r2 > 0.f;
+        Spectrum result(0.f);
+        if (dr::none_or<false>(active))
+            return { result, d, Float(0.f) };
+
+        DirectionSample3f ds = dr::zeros<DirectionSample3f>();
+        ds.p = x;
+        ds.d = d;
+        ds.dist = dr::sqrt(r2);
+        ds.pdf = pdf * r2;
+        Ray3f ray = ref.spawn_ray_to(x);
+        auto [tr, end_medium] = trace_shadow(ray, si_ref, active_surface, ds, scene, sampler,
+                                             medium, channel, tripped, active);
+        active &= end_medium == target;
+
+        // What x emits: sigma_a Le of its medium
+        MediumInteraction3f mx = dr::zeros<MediumInteraction3f>();
+        mx.p = x;
+        mx.t = 0.f;
+        mx.time = ref.time;
+        mx.wavelengths = ref.wavelengths;
+        UnpolarizedSpectrum emitted(0.f);
+        for (const TrackedMedium &k : m_tracked) {
+            Mask in_k = active && target == MediumPtr(k.medium);
+            if (!k.nee || dr::none_or<false>(in_k))
+                continue;
+            mx.medium = k.medium;
+            auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(mx, in_k);
+            DRJIT_MARK_USED(sigma_n);
+            dr::masked(emitted, in_k) = (sigma_t - sigma_s) * k.emissive->eval_emission(mx, in_k);
+        }
+        dr::masked(result, active) = tr * depolarizer<Spectrum>(emitted) / ds.pdf;
+        return { result, d, dr::select(active, ds.pdf, 0.f) };
+    }
+
+    // volpathlocal: sample_emitter's shadow ray, from `ray` (a ray from the
+    // vertex to ds.p) through media and null surfaces; returns its
+    // transmittance and the medium it ends in
+    std::pair<Spectrum, MediumPtr>
+    trace_shadow(Ray3f ray, const SurfaceInteraction3f &si_ref, const Mask &active_surface,
+                 const DirectionSample3f &ds, const Scene *scene, Sampler *sampler,
+                 MediumPtr medium, UInt32 channel, UInt32 &tripped, Mask active) const {
+        Spectrum transmittance(1.0f);
         Float max_dist = ray.maxt;
 
         // Potentially escaping the medium if this is the current medium's boundary
@@ -818,7 +976,7 @@ public:
         "volpathlocal: emitter sampling");
 
         dr::masked(tripped, active) |= ls.tripped; // volpathlocal
-        return { ls.transmittance * emitter_val, dir_sample };
+        return { ls.transmittance, ls.medium }; // volpathlocal: (trace_shadow)
     }
 
     //! @}
@@ -865,6 +1023,25 @@ private:
         if (!force && m_prepared_for.load(std::memory_order_relaxed) == scene)
             return;
         m_tracked = TrackedMedia<Float, Spectrum>::find(scene, m_max_ratio);
+        // The emissive media next-event estimation samples, each chosen in
+        // proportion to its emitted power
+        double power = 0.0;
+        m_nee_media = false;
+        m_last_nee = 0;
+        if (m_emission_sampling != EmissionSampling::Collisions)
+            for (size_t i = 0; i < m_tracked.size(); ++i) {
+                TrackedMedium &k = m_tracked[i];
+                k.nee = k.emissive && k.emissive->prepare_emission_sampling();
+                if (k.nee) {
+                    power += k.emissive->emission_power();
+                    m_last_nee = (uint32_t) i + 1;
+                }
+            }
+        for (TrackedMedium &k : m_tracked)
+            if (k.nee) {
+                k.select = dr::opaque<Float>((ScalarFloat) (k.emissive->emission_power() / power));
+                m_nee_media = true;
+            }
         m_prepared_for.store(scene, std::memory_order_release);
     }
 
@@ -883,6 +1060,12 @@ private:
     ScalarFloat m_max_ratio;
     uint32_t m_shadow_estimates; ///< ratio-tracking estimates a shadow ray averages
     bool m_residual;             ///< shadow rays: residual ratio tracking (else ratio tracking)
+    /// Emissive media: emission by collisions only, or also by next-event
+    /// estimation with MIS, or (tests) by next-event estimation alone where
+    /// it applies
+    enum class EmissionSampling { Mis, Collisions, Nee } m_emission_sampling = EmissionSampling::Mis;
+    mutable bool m_nee_media = false;  ///< prepare(): some medium is sampled
+    mutable uint32_t m_last_nee = 0;   ///< ... the last one is m_tracked[m_last_nee - 1]
     mutable std::vector<TrackedMedium> m_tracked;
     mutable std::atomic<const Scene *> m_prepared_for{ nullptr };
     mutable std::mutex m_prepare_mutex;

@@ -9,9 +9,12 @@
 #include <mitsuba/render/volume.h>
 
 #include <nanovdb_mitsuba/blackbody.h>
+#include <nanovdb_mitsuba/grid_units.h>
 #include <nanovdb_mitsuba/emissive_medium.h>
 #include <nanovdb_mitsuba/volume_source.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
+
+#include "emission_distribution.h"
 
 #include <atomic>
 #include <cmath>
@@ -218,6 +221,7 @@ public:
     void parameters_changed(const std::vector<std::string> & /*keys*/ = {}) override {
         m_max_density = dr::opaque<Float>(m_scale * m_sigmat->max());
         update_bbox(); // emissiveheterogeneous: the box
+        m_sampling_built = false; // emissiveheterogeneous: the emission's table, again
     }
 
     UnpolarizedSpectrum get_majorant(const MediumInteraction3f & /* mi */,
@@ -286,6 +290,39 @@ public:
         m_emission_rendered.store(true, std::memory_order_relaxed);
     }
 
+    bool prepare_emission_sampling() const override {
+        if (m_sampling_built)
+            return m_sampling.valid();
+        m_sampling_built = true;
+        const Volume *v = emitter_volume();
+        const auto *units = dynamic_cast<const GridUnits<Float, Spectrum> *>(v);
+        std::string why = units ? m_sampling.build(units, [this](const Point3f &p, Mask active) {
+                                      return emitted_weight(p, active);
+                                  })
+                                : std::string("it is not a nanovdbvolume");
+        if (!why.empty()) {
+            if (!m_sampling_warned.exchange(true))
+                Log(Warn, "emissiveheterogeneous: %s: next-event estimation is off for this "
+                          "medium (%s); its emission is still rendered, by collisions only",
+                    describe(v), why);
+            return false;
+        }
+        Log(Debug, "emissiveheterogeneous: %s: emission table of %zu bytes in %.3f s",
+            describe(v), m_sampling.bytes(), m_sampling.build_seconds());
+        return true;
+    }
+
+    double emission_power() const override { return m_sampling.power(); }
+
+    std::pair<Point3f, Float> sample_emission_point(const Float &u, const Point3f &u3,
+                                                    Mask active) const override {
+        return m_sampling.sample(u, u3, active);
+    }
+
+    Float emission_point_pdf(const Point3f &p, Mask active) const override {
+        return m_sampling.pdf(p, active);
+    }
+
     std::string to_string() const override {
         std::ostringstream oss;
         // emissiveheterogeneous: its own name, the emission's parameters
@@ -314,6 +351,21 @@ private:
         ScalarBoundingBox3f b = m_sigmat->bbox();
         m_bbox = BoundingBox3f(Point3f(b.min), Point3f(b.max));
         dr::make_opaque(m_bbox.min, m_bbox.max);
+    }
+
+    /// What a point emits per unit volume, for the emission's table: the
+    /// largest channel of sigma_a Le (spectral variants: at four fixed
+    /// wavelengths across the visible range), 0 where that is negative
+    /// (a blackbody's sRGB colour below ~1500 K has negative components)
+    Float emitted_weight(const Point3f &p, Mask active) const {
+        MediumInteraction3f mi = dr::zeros<MediumInteraction3f>(dr::width(p));
+        mi.p = p;
+        if constexpr (is_spectral_v<Spectrum>)
+            mi.wavelengths = Wavelength(450.f, 520.f, 590.f, 660.f);
+        auto [sigma_s, sigma_n, sigma_t] = get_scattering_coefficients(mi, active);
+        DRJIT_MARK_USED(sigma_n);
+        UnpolarizedSpectrum e = (sigma_t - sigma_s) * eval_emission(mi, active);
+        return dr::maximum(dr::max(e), 0.f);
     }
 
     /// Where a texture is looked up (colours vary only with the wavelength)
@@ -366,6 +418,11 @@ private:
     std::unique_ptr<Blackbody> m_blackbody; ///< RGB and mono variants, temperature mode
 
     mutable std::atomic<bool> m_emission_rendered{ false }, m_warned{ false };
+    /// The emission as a distribution of points (next-event estimation),
+    /// built on the integrator's request, again after a parameter change
+    mutable EmissionDistribution<Float, Spectrum> m_sampling;
+    mutable bool m_sampling_built = false;
+    mutable std::atomic<bool> m_sampling_warned{ false };
 
     // emissiveheterogeneous: and its own JIT members
     MI_TRAVERSE_CB(Base, m_sigmat, m_albedo, m_max_density, m_bbox, m_emission, m_temperature,

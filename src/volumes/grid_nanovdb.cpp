@@ -10,6 +10,7 @@
 #include <nanovdb_loader/majorants.h>
 #include <nanovdb_loader/vdb_import.h>
 #include <nanovdb_mitsuba/volume_source.h>
+#include <nanovdb_mitsuba/grid_units.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
 
@@ -274,6 +275,7 @@ using nvdb::FILTER_NAMES;
 template <typename Float, typename Spectrum>
 class NanoVDBVolume final : public Volume<Float, Spectrum>,
                             public LocalMajorants<Float, Spectrum>,
+                            public GridUnits<Float, Spectrum>,
                             public nanovdb_mitsuba::VolumeSource {
 public:
     MI_IMPORT_BASE(Volume, update_bbox, m_to_local, m_bbox, m_channel_count)
@@ -312,6 +314,7 @@ public:
                   "volume (its values are two grids of 3 channels, not one index grid); use "
                   "two 3-channel volumes, or leave differentiable out", m_filename);
         m_grid_name = m_load.facts.name;
+        m_leaf_count = summary.node_count[0];
         // Stochastic filters' offsets in eval(): a hash of the position and
         // of this seed, so that volumes of other files or grids (a medium's
         // density and albedo) are dithered independently, and a scene
@@ -634,9 +637,74 @@ public:
                                       r.coarse_limit, active, controls);
     }
 
+    // =====================================================================
+    //  Its leaves, for an emission sampler (nanovdb_mitsuba/grid_units.h),
+    //  in the walk's cell space: voxel a (absolute) is the cell [a - base,
+    //  a - base + 1)
+    // =====================================================================
+
+    uint32_t unit_leaf_count() const override {
+        return m_sampler.leaves_addressable() && !m_second ? m_leaf_count : 0;
+    }
+
+    Point3f leaf_voxel_point(const UInt32 &leaf, const UInt32 &n, Mask active) const override {
+        Vector3f local(Float(n >> 6), Float((n >> 3) & 7u), Float(n & 7u));
+        return world_from_cell(leaf_cell(leaf, active) + local + .5f);
+    }
+
+    Point3f leaf_block_point(const UInt32 &leaf, const UInt32 &block, const Point3f &u,
+                             Mask active) const override {
+        Vector3f b(Float(block >> 4), Float((block >> 2) & 3u), Float(block & 3u));
+        return world_from_cell(leaf_cell(leaf, active) + 2.f * (b + Vector3f(u)));
+    }
+
+    std::tuple<UInt32, UInt32, Mask> locate_leaf(const Point3f &p, Mask active) const override {
+        Vector3f c;
+        for (int i = 0; i < 3; ++i) {
+            c[i] = m_cell_from_world(i, 3);
+            for (int j = 0; j < 3; ++j)
+                c[i] = dr::fmadd(m_cell_from_world(i, j), p[j], c[i]);
+        }
+        using Coord = nanovdb_drjit::Coord<UInt32>;
+        const auto cell = nanovdb_drjit::index_floor(Array3f(c));
+        Coord ijk;
+        for (int k = 0; k < 3; ++k) // (int32 wrap-around, as the index space)
+            ijk[k] = dr::reinterpret_array<Int32>(dr::reinterpret_array<UInt32>(cell[k]) +
+                                                  dr::reinterpret_array<UInt32>(m_sampler.majorants.base[k]));
+        auto [leaf, found] = m_sampler.leaf_at(ijk, active);
+        UInt32 l[3];
+        for (int k = 0; k < 3; ++k)
+            l[k] = dr::reinterpret_array<UInt32>(ijk[k]) & 7u;
+        UInt32 block = ((l[0] >> 1) << 4) | ((l[1] >> 1) << 2) | (l[2] >> 1);
+        return { leaf, block, found };
+    }
+
+    ScalarFloat voxel_volume() const override { return m_voxel_volume; }
+
     MI_DECLARE_CLASS(NanoVDBVolume)
 
 private:
+    /// Leaf `leaf`'s origin in cell space
+    Vector3f leaf_cell(const UInt32 &leaf, Mask active) const {
+        const auto o = m_sampler.leaf_origin(leaf, active);
+        Vector3f c;
+        for (int k = 0; k < 3; ++k) // (int32 wrap-around, as the index space)
+            c[k] = Float(dr::reinterpret_array<Int32>(
+                dr::reinterpret_array<UInt32>(o[k]) -
+                dr::reinterpret_array<UInt32>(m_sampler.majorants.base[k])));
+        return c;
+    }
+
+    Point3f world_from_cell(const Vector3f &c) const {
+        Point3f p;
+        for (int i = 0; i < 3; ++i) {
+            p[i] = m_world_from_cell(i, 3);
+            for (int j = 0; j < 3; ++j)
+                p[i] = dr::fmadd(m_world_from_cell(i, j), c[j], p[i]);
+        }
+        return p;
+    }
+
     static constexpr uint32_t kVec3f = nanovdb_drjit::layout::GRID_TYPE_VEC3F;
 
     std::string channels_str() const {
@@ -878,6 +946,15 @@ private:
         for (int r = 0; r < 4; ++r)
             for (int c = 0; c < 4; ++c)
                 m_cell_from_world(r, c) = dr::opaque<Float>((ScalarFloat) m(r, c));
+        // ... and back (emission sampling: GridUnits), with one voxel's volume
+        const nanovdb_placement::Matrix4d w = dr::inverse(m);
+        for (int r = 0; r < 4; ++r)
+            for (int c = 0; c < 4; ++c)
+                m_world_from_cell(r, c) = dr::opaque<Float>((ScalarFloat) w(r, c));
+        m_voxel_volume = (ScalarFloat) std::abs(
+            w(0, 0) * (w(1, 1) * w(2, 2) - w(1, 2) * w(2, 1)) -
+            w(0, 1) * (w(1, 0) * w(2, 2) - w(1, 2) * w(2, 0)) +
+            w(0, 2) * (w(1, 0) * w(2, 1) - w(1, 1) * w(2, 0)));
     }
 
     nanovdb_placement::Int3 index_min() const {
@@ -902,6 +979,7 @@ private:
     Vector3f m_resolution;             // the box's extent in voxels, as Float
     Matrix4f m_index_from_world;       // use_grid_transform: world -> index - min
     Matrix4f m_cell_from_world;        // world -> the walk's cell space
+    Matrix4f m_world_from_cell;        // ... and back (GridUnits)
 
     // Host
     /// The load's settings, and what it learnt: the grids' facts, a .vdb's
@@ -911,6 +989,8 @@ private:
     ScalarVector3i m_resolution_host;
     int32_t m_index_min_box[3] = {}, m_resolution_box[3] = {};
     ScalarFloat m_background_host = 0.f;
+    uint32_t m_leaf_count = 0;         // the grid's leaves (GridUnits)
+    ScalarFloat m_voxel_volume = 0.f;  // one voxel's world volume (GridUnits)
     dr::Matrix<double, 4> m_index_from_world_host; // use_grid_transform, in double
     Filter m_filter = Filter::Trilinear;
     uint32_t m_seed = 0;               // stochastic filters' hash seed (eval())
@@ -935,7 +1015,7 @@ private:
     static inline thread_local Offsets s_offsets = { nullptr, nullptr };
 
     MI_TRAVERSE_CB(Base, m_sampler, m_second, m_resolution, m_index_from_world,
-                   m_cell_from_world)
+                   m_cell_from_world, m_world_from_cell)
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)

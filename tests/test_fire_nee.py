@@ -1,0 +1,259 @@
+"""
+Next-event estimation toward emissive media (issue 35: volpathlocal's
+emission_sampling; the table: src/media/emission_distribution.h, tested
+on its own in tests/test_emission_table.cpp), against independent
+references:
+
+- analytic: a uniform emitting, absorbing box (albedo 0) above a diffuse
+  floor; the floor's radiance is reflectance / pi x the irradiance
+  E(p) = int_box sigma_a Le exp(-sigma_a l(p, x)) cos / r^2 dV, l the
+  length of p -> x inside the box, integrated here in numpy (midpoint rule
+  on 40^3 points); every mode (collisions only, NEE with MIS, NEE alone)
+  per pixel and over the image, z-tests;
+- unbiased: a scattering fireball over a floor (a hot core in smoke, the
+  smoke lit by its own fire, the floor lit by both), NEE + MIS against the
+  collision estimator alone, per region (fire, floor, smoke) and per 8 x 8
+  block, z-tests over independent renders;
+- bad input: an emission of zero power turns NEE off for that medium and
+  says so, and the render is the collision estimator's.
+"""
+
+import numpy as np
+import pytest
+import mitsuba as mi
+
+from conftest import make_stability_grid as make_stab
+
+Z_MAX = 5.0
+
+
+def T4():
+    return mi.ScalarTransform4f()
+
+
+def dense(values, filter_type="nearest", to_world=None):
+    v = {"type": "nanovdbvolume", "data": mi.TensorXf(np.asarray(values, np.float32)),
+         "filter_type": filter_type}
+    if to_world is not None:
+        v["to_world"] = to_world
+    return v
+
+
+def film(size):
+    return {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"},
+            "pixel_format": "rgb"}
+
+
+def renders(scene, k, spp, seed0=0):
+    """k independent renders [k, H, W, 3]"""
+    return np.stack([np.array(mi.render(scene, seed=seed0 + 1000 * i, spp=spp),
+                              dtype=np.float64)[..., :3] for i in range(k)])
+
+
+# ---------------------------------------------------------------------------
+#  A uniform emitting box over a floor: analytic irradiance
+# ---------------------------------------------------------------------------
+
+BOX_LO, BOX_HI = np.array([0.0, 0.1, 0.0]), np.array([1.0, 1.1, 1.0])
+SIGMA_A, LE, REFLECTANCE = 2.0, 1.5, 0.5
+
+
+@pytest.fixture(scope="module")
+def box_grids(tmp_path_factory):
+    """Constant 16^3 grids of voxels (in leaves, not pruned to tiles: NEE
+    samples leaves), density 1, emission LE and 0"""
+    d = tmp_path_factory.mktemp("fire_nee")
+    box = ("--min", 0, 0, 0, "--max", 15, 15, 15)
+    return {v: make_stab(d, f"c{i}", *box, "--value", v, dense=False)[0]
+            for i, v in enumerate((1.0, LE, 0.0))}
+
+
+def box_scene(grids, mode, size, spp, emission=LE):
+    place = T4().translate(BOX_LO.tolist())  # (the box's cells onto the unit cube, then here)
+    medium = {"type": "emissiveheterogeneous", "albedo": 0.0, "scale": SIGMA_A,
+              "sigma_t": {"type": "nanovdbvolume", "filename": grids[1.0],
+                          "filter_type": "nearest", "to_world": place},
+              "emission": {"type": "nanovdbvolume", "filename": grids[emission],
+                           "filter_type": "nearest", "to_world": place}}
+    return {
+        "type": "scene",
+        "integrator": {"type": "volpathlocal", "emission_sampling": mode},
+        "box": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium,
+                "to_world": T4().translate((0.5 * (BOX_LO + BOX_HI)).tolist()).scale(0.5)},
+        "floor": {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": REFLECTANCE},
+                  "to_world": T4().rotate([1, 0, 0], -90).scale(3.0)},
+        "sensor": {"type": "orthographic", "film": film(size),
+                   "to_world": T4().look_at(origin=[0.5, 4.0, 0.5], target=[0.5, 0.0, 0.5],
+                                            up=[0, 0, 1]) @ T4().scale([1.5, 1.5, 1]),
+                   "sampler": {"type": "independent", "sample_count": spp}},
+    }
+
+
+def box_irradiance(p, n=40):
+    """E at floor points p [N, 3] (normal +y) from the box, midpoint rule"""
+    g = (np.arange(n) + 0.5) / n
+    x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) * (BOX_HI - BOX_LO) + BOX_LO
+    dv = np.prod(BOX_HI - BOX_LO) / n ** 3
+    out = np.empty(len(p))
+    for i, q in enumerate(p):
+        d = x - q
+        r2 = (d * d).sum(1)
+        r = np.sqrt(r2)
+        # where the segment q -> x enters the box (slabs; x is inside)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0 = (BOX_LO - q) / d
+            t1 = (BOX_HI - q) / d
+        t_in = np.nanmax(np.where(np.isfinite(t0), np.minimum(t0, t1), -np.inf), axis=1)
+        t_in = np.clip(t_in, 0.0, 1.0)
+        length = r * (1.0 - t_in)
+        out[i] = (SIGMA_A * LE * np.exp(-SIGMA_A * length) * d[:, 1] / r / r2).sum() * dv
+    return out
+
+
+def floor_points(scene, size):
+    """Per pixel: 2 x 2 points of the floor its footprint covers (the
+    sensor's own rays), and whether the pixel's rays miss the box"""
+    sensor = scene.sensors()[0]
+    pts, clear = [], []
+    for j in range(size):
+        for i in range(size):
+            sub = []
+            for (a, b) in ((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)):
+                ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((i + a) / size, (j + b) / size),
+                                           mi.Point2f(0.5, 0.5))
+                o = np.array(ray.o, dtype=np.float64).ravel()
+                dd = np.array(ray.d, dtype=np.float64).ravel()
+                sub.append(o + dd * (-o[1] / dd[1]))
+            sub = np.array(sub)
+            pts.append(sub)
+            lo, hi = sub.min(0), sub.max(0)
+            # (half a pixel beyond the footprint: no ray of the pixel meets the box)
+            clear.append(hi[0] < BOX_LO[0] - 0.1 or lo[0] > BOX_HI[0] + 0.1 or
+                         hi[2] < BOX_LO[2] - 0.1 or lo[2] > BOX_HI[2] + 0.1)
+    return np.array(pts), np.array(clear)
+
+
+@pytest.mark.parametrize("mode", ["collisions", "mis", "nee"])
+def test01_box_lights_floor_analytic(variants_rgb, box_grids, mode):
+    # The collision estimator is heavy-tailed here (a floor point sees the
+    # box through few of its samples): its pixels are checked in 2 x 2
+    # groups, over 16 renders; NEE's per pixel
+    size, k = 12, 16
+    spp = 32 if mode == "collisions" else 16
+    scene = mi.load_dict(box_scene(box_grids, mode, size, spp))
+    pts, clear = floor_points(scene, size)
+    expect = (REFLECTANCE / np.pi * box_irradiance(pts.reshape(-1, 3))).reshape(-1, 4).mean(1)
+    imgs = renders(scene, k, spp).reshape(k, size * size, 3)
+    if mode == "collisions":  # 2 x 2 groups of clear pixels
+        group = (np.arange(size)[:, None] // 2 * (size // 2) + np.arange(size)[None, :] // 2).ravel()
+        keep = np.array([clear[group == g].all() for g in range(group.max() + 1)])
+        imgs = np.stack([imgs[:, group == g].mean(1) for g in range(group.max() + 1)], 1)[:, keep]
+        e = np.array([expect[group == g].mean() for g in range(group.max() + 1)])[keep][:, None]
+    else:
+        imgs, e = imgs[:, clear], expect[clear][:, None]
+    mean = imgs.mean(0)
+    se = imgs.std(0, ddof=1) / np.sqrt(k)
+    # per pixel (group): within Z_MAX standard errors (and 1e-3 for the quadrature)
+    bad = np.abs(mean - e) > Z_MAX * se + 1e-3 * e
+    assert not bad.any(), (mode, np.argwhere(bad)[:4], mean[bad.any(1)][:4], e[bad.any(1)][:4])
+    # the image: per channel, its mean within Z_MAX standard errors
+    whole = imgs.mean(1)
+    tol = Z_MAX * whole.std(0, ddof=1) / np.sqrt(k) + 1e-3 * e.mean()
+    assert np.all(np.abs(whole.mean(0) - e.mean()) <= tol), (mode, whole.mean(0), e.mean(), tol)
+
+
+def test02_nee_lowers_the_floors_variance(variant_llvm_ad_rgb, box_grids):
+    # The point of NEE (and a check that it runs): on the box's floor, the
+    # variance per pixel against the collision estimator's, same spp
+    size, spp, k = 12, 16, 4
+    var = {}
+    for mode in ("collisions", "mis"):
+        scene = mi.load_dict(box_scene(box_grids, mode, size, spp))
+        _, clear = floor_points(scene, size)
+        var[mode] = renders(scene, k, spp).reshape(k, -1, 3)[:, clear].var(0, ddof=1).mean()
+    assert var["mis"] < 0.25 * var["collisions"], var  # (measured: 0.13)
+
+
+# ---------------------------------------------------------------------------
+#  A scattering fireball over a floor: NEE + MIS = collisions
+# ---------------------------------------------------------------------------
+
+def fireball_grids(n=24):
+    g = (np.arange(n) + 0.5) / n - 0.5
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    r = np.sqrt(x * x + y * y + z * z)
+    rng = np.random.default_rng(7)
+    density = np.clip(1.0 - r / 0.5, 0.0, None) * (0.6 + 0.4 * rng.random(r.shape))
+    temperature = np.clip(1.0 - r / 0.3, 0.0, None) * 2.8   # kK: 2800 K at the core
+    return density, temperature
+
+
+def fireball_scene(mode, size, spp, filter_type="trilinear"):
+    density, temperature = fireball_grids()
+    medium = {"type": "emissiveheterogeneous", "albedo": 0.6, "scale": 8.0,
+              "sigma_t": dense(density.transpose(2, 1, 0), filter_type),
+              "temperature": dense(temperature.transpose(2, 1, 0), filter_type),
+              "temperature_scale": 1000.0, "emission_scale": 0.05}
+    return {
+        "type": "scene",
+        "integrator": {"type": "volpathlocal", "emission_sampling": mode, "max_depth": 16},
+        "sky": {"type": "constant", "radiance": 0.02},
+        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium,
+                 "to_world": T4().translate([0.5, 0.5, 0.5]).scale(0.5)},
+        "floor": {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": 0.5},
+                  "to_world": T4().translate([0.5, -0.02, 0.5]).rotate([1, 0, 0], -90).scale(3.0)},
+        "sensor": {"type": "perspective", "fov": 45, "film": film(size),
+                   "to_world": T4().look_at(origin=[0.5, 1.2, 2.6], target=[0.5, 0.3, 0.5],
+                                            up=[0, 1, 0]),
+                   "sampler": {"type": "independent", "sample_count": spp}},
+    }
+
+
+def test03_fireball_mis_equals_collisions(variants_rgb):
+    size, spp, k = 16, 32, 8
+    ref = renders(mi.load_dict(fireball_scene("collisions", size, spp)), k, spp, seed0=1)
+    new = renders(mi.load_dict(fireball_scene("mis", size, spp)), k, spp, seed0=2)
+    # regions: the fire (the brightest 5 % of the reference), the rest
+    luma = ref.mean(0) @ np.array([0.2126, 0.7152, 0.0722])
+    fire = luma >= np.quantile(luma, 0.95)
+    def z(a, b):
+        return (a.mean() - b.mean()) / np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
+    for name, m in (("fire", fire), ("rest", ~fire), ("image", np.ones_like(fire))):
+        zz = z(new[:, m].mean(1), ref[:, m].mean(1))
+        assert abs(zz) < Z_MAX, (name, zz, new[:, m].mean(), ref[:, m].mean())
+    # 8 x 8 blocks
+    blocks = lambda a: a.reshape(k, size // 8, 8, size // 8, 8, 3).mean((2, 4))
+    bn, br = blocks(new), blocks(ref)
+    zb = (bn.mean(0) - br.mean(0)) / np.sqrt(bn.var(0, ddof=1) / k + br.var(0, ddof=1) / k + 1e-30)
+    assert np.abs(zb).max() < Z_MAX, zb
+
+
+# ---------------------------------------------------------------------------
+#  Bad input
+# ---------------------------------------------------------------------------
+
+def warnings_of(fn):
+    """Runs fn() with Mitsuba's log caught: (its result, the lines)"""
+    seen = []
+
+    class Catch(mi.Appender):
+        def append(self, level, text):
+            seen.append(text)
+
+        def log_progress(self, *args):
+            pass
+
+    catch = Catch()
+    mi.logger().add_appender(catch)
+    try:
+        return fn(), seen
+    finally:
+        mi.logger().remove_appender(catch)
+
+
+def test04_zero_power_turns_nee_off_and_says_so(variant_scalar_rgb, box_grids):
+    scene = mi.load_dict(box_scene(box_grids, "mis", 8, 4, emission=0.0))
+    img, seen = warnings_of(lambda: np.array(mi.render(scene, spp=4)))
+    assert np.all(img == 0.0)
+    msgs = [t for t in seen if "next-event estimation is off" in t]
+    assert len(msgs) == 1 and "zero power" in msgs[0] and "c2.nvdb" in msgs[0], seen
