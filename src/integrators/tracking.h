@@ -76,6 +76,9 @@ template <typename Float, typename Spectrum> struct Tracking {
         Point3f origin;
         Float dir_pdf;
         bool nee_only = false;
+        /// Lanes whose segment's emission another estimator adds (the camera
+        /// segment: emission_ratio_tracking): the flight adds none
+        Mask skip = false;
     };
 
     /// A flight through a tracked medium: the walk, the position t along the
@@ -340,14 +343,14 @@ template <typename Float, typename Spectrum> struct Tracking {
                 auto [sigma_s, sigma_n, sigma_t] = coefficients(k, mei, sampler_, hit);
                 DRJIT_MARK_USED(sigma_n);
                 if (k.emissive) { // (traced only for an emissive medium)
-                    Float w = 1.f;
+                    Float w = dr::select(mis.skip, 0.f, 1.f);
                     if (k.nee) { // (traced only where next-event estimation samples it)
                         Mask on = hit && mis.on;
                         Float p_nee = k.select * k.emissive->emission_point_pdf(mei.p, on) *
                                       dr::squared_norm(mei.p - mis.origin);
                         Float w_mis = mis.nee_only
                             ? Float(0.f) : dr::select(p_nee > 0.f, mis.dir_pdf / (mis.dir_pdf + p_nee), 1.f);
-                        w = dr::select(on, w_mis, 1.f);
+                        w = dr::select(mis.skip, 0.f, dr::select(on, w_mis, 1.f));
                     }
                     dr::masked(s.emitted, hit) += s.weight * (sigma_t - sigma_s) *
                                                   k.emissive->eval_emission(mei, hit) * w / mu;
@@ -419,6 +422,55 @@ template <typename Float, typename Spectrum> struct Tracking {
      */
     /// Residual ratio tracking's Russian roulette threshold (see ratio_tracking)
     static constexpr float RESIDUAL_RR = 0.3f;
+
+    /**
+     * The emission along `ray` through emissive medium k up to tmax, by
+     * ratio tracking (issue 35: the fire seen directly). Delta tracking
+     * collects it only up to its first real collision (its survival past a
+     * tentative collision is 0 or 1); here every tentative collision t_i,
+     * sampled at rate mu, adds
+     *     W_i sigma_a(t_i) Le(t_i) / mu,   W_i = prod_{j < i} (mu - mu_t(t_j)) / mu,
+     * the survival replaced by its estimate, to the end of the medium. The
+     * product over the Poisson points before t is unbiased for T(t) (ratio
+     * tracking's identity) and independent of the point at t, so the sum's
+     * mean is int T sigma_a Le: the same as delta tracking's, with the
+     * survival's variance averaged out. Russian roulette below
+     * EMISSION_RR (weighted), as residual tracking's. The path's own flight
+     * then adds no emission on that segment (EmissionMis::skip). Costs a
+     * walk of the segment beyond the first real collision.
+     */
+    static constexpr float EMISSION_RR = 0.1f;
+
+    static std::pair<UnpolarizedSpectrum, UInt32>
+    emission_ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
+                            const Float &coarse_depth, Sampler *sampler, Mask active) {
+        auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
+        struct State {
+            UnpolarizedSpectrum weight, emitted;
+            DRJIT_STRUCT(State, weight, emitted)
+        } st = { UnpolarizedSpectrum(1.f), dr::zeros<UnpolarizedSpectrum>() };
+        Flight f = sample_t_maj(
+            k, wr, mint, maxt, sampler, st, RatioLoop, active,
+            [k, ray, mint](State &s_, const Flight &f_, const Float &mu, const Float & /* c */,
+                           Sampler *sampler_, const Mask &hit) {
+                MediumInteraction3f mei = interaction_at(k, ray, f_.t, mint);
+                auto [sigma_s, sigma_n, sigma_t] = coefficients(k, mei, sampler_, hit);
+                DRJIT_MARK_USED(sigma_n);
+                dr::masked(s_.emitted, hit) += s_.weight * (sigma_t - sigma_s) *
+                                               k.emissive->eval_emission(mei, hit) / mu;
+                dr::masked(s_.weight, hit) *= (mu - sigma_t) / mu;
+                Float w = dr::max(s_.weight);
+                Mask low = hit && (w < EMISSION_RR);
+                if (dr::any_or<true>(low)) {
+                    Float q = w * (1.f / EMISSION_RR);
+                    Float xi = sampler_->next_1d(low);
+                    dr::masked(s_.weight, low) = dr::select(xi < q, s_.weight / q, 0.f);
+                }
+                return !dr::all(s_.weight == 0.f);
+            },
+            "volpathlocal: emission by ratio tracking");
+        return { st.emitted, f.tripped };
+    }
 
     static std::pair<UnpolarizedSpectrum, UInt32>
     ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
