@@ -15,7 +15,7 @@ skipped without it). Per case and variant, one child process
 (bench/harness.py) renders, for each mode in turn, an spp sweep (each
 point the minimum time of --repeats turntables, after an untimed render
 at that spp that compiles its kernels), against one reference per case
-(`mis`, llvm_ad_rgb, --ref-spp in --ref-passes passes, cached in --data
+(`mis`, --ref-variant, --ref-spp in --ref-passes passes, cached in --data
 keyed by the settings, the grids and the plugins). Errors: relative RMSE,
 noise-corrected, over the image and per region (bench/emission.py's
 masks: the fire seen directly, the floor, the smoke), and at equal time
@@ -97,6 +97,16 @@ def child(spec):
                 images[f"{n}__{mode}__{spp}"] = im
                 pts.append({"spp": spp, "time_s": min(ts), "times_s": ts})
             res["sweep"][mode] = pts
+            if mode != "collisions" and "table" not in res:  # (built by the first render)
+                params = mi.traverse(s)
+                key = next((k for k in params.keys() if k.endswith("emission_table_bytes")), None)
+                if key:
+                    from nanovdb_mitsuba import volume_facts
+                    temp = mi.load_dict(emission.volumes(mi, case)[1])
+                    res["table"] = {"bytes": float(params[key]),
+                                    "seconds": float(params[key.replace("bytes", "seconds")]),
+                                    "grid_bytes": float(volume_facts(temp)["grid_bytes"]),
+                                    "scene_load_s": res["load_s"][mode]}
             log(f"    {spec['variant']} {n} {mode}: " +
                 ", ".join(f"{p['spp']} spp {p['time_s']:.2f} s" for p in pts))
     np.savez(spec["out_npz"], **images)
@@ -126,6 +136,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--ref-spp", type=int, default=2048)
     ap.add_argument("--ref-passes", type=int, default=8)
+    ap.add_argument("--ref-variant", default="llvm_ad_rgb")
     ap.add_argument("--data", default=os.path.join(HERE, "data", "emission"))
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
     ap.add_argument("--out")
@@ -152,7 +163,7 @@ def main():
     sos = [os.path.join(a.build, "plugins", p + ".so") for p in emission.PLUGINS]
     refs, missing = {}, []
     for case in case_list:
-        key = (f"nee_{case['name']}__r{a.res}x{a.sensors}__s{a.ref_spp}x{a.ref_passes}__"
+        key = (f"nee_{case['name']}__r{a.res}x{a.sensors}__s{a.ref_spp}x{a.ref_passes}__{a.ref_variant}__"
                f"{emission.source_key(emission.volumes, emission.sensor, emission.scene_dict, scene, emission.region_ids, emission.MEDIUM, emission.FIRE)}__"
                f"{emission.file_key([case['file']] + sos)}")
         case["ref"] = os.path.join(a.data, "refs", key + ".npz")
@@ -162,9 +173,9 @@ def main():
         else:
             missing.append(case)
     if missing:
-        log(f"== references (mis, llvm_ad_rgb, {a.ref_spp} spp): " +
+        log(f"== references (mis, {a.ref_variant}, {a.ref_spp} spp): " +
             ", ".join(c["name"] for c in missing))
-        spec = {"mode": "reference", "variant": "llvm_ad_rgb", "build": a.build,
+        spec = {"mode": "reference", "variant": a.ref_variant, "build": a.build,
                 "cases": [{"name": c["name"], "file": c["file"]} for c in missing],
                 "res": a.res, "sensors": a.sensors, "ref_spp": a.ref_spp,
                 "ref_passes": a.ref_passes}
@@ -220,7 +231,7 @@ def write_report(a, case_list, errors, measured, notes, started, elapsed):
          f"Run {started:%Y-%m-%d %H:%M %Z}, {elapsed:.0f} s, {os.cpu_count()} cores. "
          f"bench/emission.py's `on` scenes ({a.sensors} sensors at {a.res}²); modes of "
          "volpathlocal's `emission_sampling`; errors against one `mis` reference per case "
-         f"(llvm_ad_rgb, {a.ref_spp} spp), noise-corrected, relative to the reference's mean "
+         f"({a.ref_variant}, {a.ref_spp} spp), noise-corrected, relative to the reference's mean "
          "(image) or to its mean over the region.", "",
          f"![error against time]({png})", "",
          "## At equal time, against `collisions`", "",
@@ -249,6 +260,18 @@ def write_report(a, case_list, errors, measured, notes, started, elapsed):
                     cells.append("–" if res["ratio"] is None else
                                  f"{res['ratio']:.2f}, {res['cost_ratio']:.1f}×")
                 L.append(f"| {c['name']} | {v} | {mode} | " + " | ".join(cells) + " |")
+    L += ["", "## The emission table", "",
+          "Bytes and build time (at the first render) against the emission grid's bytes and "
+          "the scene's load time (both grids, llvm_ad_rgb: the first variant).", "",
+          "| case | table bytes | emission grid bytes | share | build [s] | scene load [s] |",
+          "|---|---:|---:|---:|---:|---:|"]
+    for c in case_list:
+        t = next((m["cases"][c["name"]].get("table") for m in measured.values()
+                  if m["cases"][c["name"]].get("table")), None)
+        if t:
+            L.append(f"| {c['name']} | {t['bytes']:.0f} | {t['grid_bytes']:.0f} | "
+                     f"{100 * t['bytes'] / t['grid_bytes']:.2f} % | {t['seconds']:.3f} | "
+                     f"{t['scene_load_s']:.3f} |")
     L += ["", "## Every point", "",
           "| case | variant | mode | spp | time [s] | " + " | ".join(
               f"{r} rel. RMSE" for r in regions) + " |",

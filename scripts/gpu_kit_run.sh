@@ -12,14 +12,15 @@
 #      trilinear, error at equal time: issue 19's CUDA targets),
 #      bench/huge_sparse.py (a grid whose dense form does not fit on the GPU),
 #      bench/emission.py (fire: emissiveheterogeneous against the same
-#      medium without emission) and bench/optimize.py (prbvolpath on the
+#      medium without emission), bench/fire_nee.py (next-event estimation
+#      toward the fire against collisions alone) and bench/optimize.py (prbvolpath on the
 #      shared smoke through gridvolume and nanovdbvolume, trilinear and
 #      stochastic_trilinear),
 # and writes logs and results to --out. Needs: Python 3 with numpy and pytest
 # (the version the kit was packed for), an NVIDIA driver.
 #
 # Usage: bash gpu-kit/run.sh [--out DIR] [--home DIR]
-#                            [--steps "doctest pytest bench filters huge emission optimize"]
+#                            [--steps "doctest pytest bench filters huge emission fire_nee optimize"]
 #                            [--limits "pytest=180 bench=100 ..."]
 #                            [--bench-args "..."] [--filters-args "..."] [--huge-args "..."]
 #                            [--emission-args "..."] [--optimize-args "..."]
@@ -31,7 +32,7 @@ set -uo pipefail
 KIT=$(cd "$(dirname "$0")" && pwd)
 OUT=$PWD/gpu-kit-results
 HOME_DIR=${NVDB_KIT_HOME:-/tmp/nvdb-gpu-kit}
-STEPS="doctest pytest bench filters huge emission optimize"
+STEPS="doctest pytest bench filters huge emission fire_nee optimize"
 BENCH_ARGS="--integrators volpath volpathlocal" FILTERS_ARGS="" HUGE_ARGS=""
 EMISSION_ARGS="" OPTIMIZE_ARGS="" LIMITS=""
 while [ $# -gt 0 ]; do
@@ -167,6 +168,11 @@ if want emission; then
   step emission "$PYTHON" bench/emission.py --cases fireball --variants cuda_ad_rgb \
        --ref-variant cuda_ad_rgb --build "$H/build" --data "$H/bench-data/emission" \
        --out "$OUT/bench/emission.md" $EMISSION_ARGS
+fi
+if want fire_nee; then
+  step fire_nee "$PYTHON" bench/fire_nee.py --cases fireball --variants cuda_ad_rgb \
+       --ref-variant cuda_ad_rgb --build "$H/build" --data "$H/bench-data/emission" \
+       --out "$OUT/bench/fire_nee.md"
 fi
 if want optimize; then
   optimize() {  # prbvolpath on the shared smoke: gridvolume, nanovdbvolume x 2 filters

@@ -168,9 +168,9 @@ The estimators (for a tracked medium, with majorant :math:`\bar\mu(t)` =
   of 2³ voxels, weighted by :math:`\sigma_a L_e`), and
   :math:`f\,\hat T\,\sigma_a L_e\,w / (p\,r^2)`; the emission that the
   next flight collects at :math:`x` is weighted by :math:`1 - w`, with
-  :math:`w = p r^2 / (p r^2 + p_\text{dir})` (the balance heuristic, with
-  1 in place of the flight's probability of reaching :math:`x`, so that
-  both sides compute the same weight).
+  :math:`w = (p r^2)^2 / ((p r^2)^2 + p_\text{dir}^2)` (the power
+  heuristic, with 1 in place of the flight's probability of reaching
+  :math:`x`, so that both sides compute the same weight).
 
 .. tabs::
     .. code-tab:: xml
@@ -628,7 +628,7 @@ public:
                 auto weight = [this](const Float &p_point, const Float &p_dir) {
                     return dr::select(p_point > 0.f,
                                       m_emission_sampling == EmissionSampling::Nee
-                                          ? Float(1.f) : p_point / (p_point + p_dir),
+                                          ? Float(1.f) : dr::square(p_point) / (dr::square(p_point) + dr::square(p_dir)),
                                       0.f);
                 };
                 if (dr::any_or<true>(active_e_medium)) {

@@ -209,6 +209,12 @@ public:
             cb->put("emission", m_emission, ParamFlags::NonDifferentiable);
         if (m_color)
             cb->put("color", m_color, ParamFlags::NonDifferentiable);
+        // emissiveheterogeneous: its emission table's bytes and build time
+        // (next-event estimation; 0 until a render built it)
+        m_table_bytes = (double) m_sampling.bytes();
+        m_table_seconds = m_sampling.build_seconds();
+        cb->put("emission_table_bytes", m_table_bytes, ParamFlags::NonDifferentiable);
+        cb->put("emission_table_seconds", m_table_seconds, ParamFlags::NonDifferentiable);
         if (m_temperature) {
             cb->put("temperature", m_temperature, ParamFlags::NonDifferentiable);
             cb->put("temperature_scale", m_t_scale, ParamFlags::NonDifferentiable);
@@ -422,6 +428,7 @@ private:
     /// built on the integrator's request, again after a parameter change
     mutable EmissionDistribution<Float, Spectrum> m_sampling;
     mutable bool m_sampling_built = false;
+    double m_table_bytes = 0.0, m_table_seconds = 0.0; ///< traverse()'s copies
     mutable std::atomic<bool> m_sampling_warned{ false };
 
     // emissiveheterogeneous: and its own JIT members
