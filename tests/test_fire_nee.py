@@ -22,13 +22,24 @@ import numpy as np
 import pytest
 import mitsuba as mi
 
-from conftest import make_stability_grid as make_stab
+from conftest import TEST_VARIANTS, _setup_variant, make_stability_grid as make_stab
 
 Z_MAX = 5.0
 
 
 def T4():
     return mi.ScalarTransform4f()
+
+
+# The analytic test's variants: two RGB and one spectral (NVDB_TEST_VARIANTS
+# replaces them)
+@pytest.fixture(params=TEST_VARIANTS or ["scalar_rgb", "llvm_ad_rgb", "scalar_spectral"])
+def variants_nee(request):
+    _setup_variant(request.param)
+    return request.param
+
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
 def dense(values, filter_type="nearest", to_world=None):
@@ -134,16 +145,19 @@ def floor_points(scene, size):
 
 
 @pytest.mark.parametrize("mode", ["collisions", "mis", "nee"])
-def test01_box_lights_floor_analytic(variants_rgb, box_grids, mode):
+def test01_box_lights_floor_analytic(variants_nee, box_grids, mode):
     # The collision estimator is heavy-tailed here (a floor point sees the
     # box through few of its samples): its pixels are checked in 2 x 2
-    # groups, over 16 renders; NEE's per pixel
+    # groups, over 16 renders; NEE's per pixel. Spectral variants: the
+    # luminance (a flat spectrum's Y is its value; its sRGB is not grey)
     size, k = 12, 16
     spp = 32 if mode == "collisions" else 16
     scene = mi.load_dict(box_scene(box_grids, mode, size, spp))
     pts, clear = floor_points(scene, size)
     expect = (REFLECTANCE / np.pi * box_irradiance(pts.reshape(-1, 3))).reshape(-1, 4).mean(1)
     imgs = renders(scene, k, spp).reshape(k, size * size, 3)
+    if mi.is_spectral:
+        imgs = (imgs @ LUMA)[..., None]
     if mode == "collisions":  # 2 x 2 groups of clear pixels
         group = (np.arange(size)[:, None] // 2 * (size // 2) + np.arange(size)[None, :] // 2).ravel()
         keep = np.array([clear[group == g].all() for g in range(group.max() + 1)])
@@ -226,6 +240,47 @@ def test03_fireball_mis_equals_collisions(variants_rgb):
     bn, br = blocks(new), blocks(ref)
     zb = (bn.mean(0) - br.mean(0)) / np.sqrt(bn.var(0, ddof=1) / k + br.var(0, ddof=1) / k + 1e-30)
     assert np.abs(zb).max() < Z_MAX, zb
+
+
+def two_boxes_scene(grids, mode, size, spp, fog):
+    """Two emitting boxes of different brightness (NEE picks one by its
+    power) over the floor; with `fog`, the whole scene inside a grey
+    homogeneous fog (emission reached through another medium: NEE's shadow
+    rays cross it, and a shadow ray that does not end in its target's
+    medium counts nothing)"""
+    scene = box_scene(grids, mode, size, spp)
+    scene["integrator"]["max_depth"] = 8
+    place2 = T4().translate([1.3, 0.1, 0.0])
+    second = dict(scene["box"]["interior"], emission_scale=0.3)
+    second["sigma_t"] = dict(second["sigma_t"], to_world=place2)
+    second["emission"] = dict(second["emission"], to_world=place2)
+    scene["box2"] = {"type": "cube", "bsdf": {"type": "null"}, "interior": second,
+                     "to_world": T4().translate([1.8, 0.6, 0.5]).scale(0.5)}
+    if fog:
+        scene["fog"] = {"type": "homogeneous", "sigma_t": 0.4, "albedo": 0.7}
+        ref = {"type": "ref", "id": "fog"}
+        scene["fog_box"] = {"type": "cube", "bsdf": {"type": "null"}, "interior": ref,
+                            "to_world": T4().translate([0.9, 1.0, 0.5]).scale([2.0, 1.2, 2.0])}
+        for k in ("box", "box2", "floor"):
+            scene[k]["exterior"] = ref
+    return scene
+
+
+@pytest.mark.parametrize("fog", [False, True])
+def test05_two_media_and_fog_mis_equals_collisions(variant_llvm_ad_rgb, box_grids, fog):
+    size, spp, k = 12, 32, 16
+    ref = renders(mi.load_dict(two_boxes_scene(box_grids, "collisions", size, 4 * spp, fog)),
+                  k, 4 * spp, seed0=3)
+    new = renders(mi.load_dict(two_boxes_scene(box_grids, "mis", size, spp, fog)), k, spp,
+                  seed0=4)
+    # both boxes' floors and the whole image: z-tests over the renders
+    for name, sl in (("left", np.s_[:, :, : size // 2]), ("right", np.s_[:, :, size // 2:]),
+                     ("image", np.s_[:])):
+        a, b = new[sl].reshape(k, -1).mean(1), ref[sl].reshape(k, -1).mean(1)
+        z = (a.mean() - b.mean()) / np.sqrt(a.var(ddof=1) / k + b.var(ddof=1) / k)
+        assert abs(z) < Z_MAX, (fog, name, z, a.mean(), b.mean())
+    # and NEE does its job: lower variance per pixel at a quarter of the spp
+    assert new.var(0, ddof=1).mean() < ref.var(0, ddof=1).mean() * 4
 
 
 # ---------------------------------------------------------------------------

@@ -102,7 +102,8 @@ def test04_no_emission_is_darker(tmp_path):
     assert lit.mean() > dark.mean()
     gain = (lit - dark)[..., :3]
     assert gain[..., 0].max() > 0.2, gain[..., 0].max()
-    assert gain[..., 0].sum() > gain[..., 2].sum() > 0
+    # (blue: a 2800 K fire adds little, less than these renders' noise)
+    assert gain[..., 0].sum() > max(gain[..., 2].sum(), 0.0)
 
 
 def test05_a_missing_grid_names_the_file_and_its_grids(tmp_path):
