@@ -104,8 +104,11 @@ def constant_density(value=1.0, n=8):
             "filter_type": "nearest"}
 
 
-def slab_scene(medium, size, spp, extra=None):
-    scene = {"type": "scene", "integrator": {"type": "volpathlocal"},
+def slab_scene(medium, size, spp, extra=None, estimator="collisions"):
+    # (emission_sampling "collisions": the estimator whose samples are
+    # Bernoulli; "mis" estimates the camera's emission by ratio tracking)
+    scene = {"type": "scene",
+             "integrator": {"type": "volpathlocal", "emission_sampling": estimator},
              "sensor": head_on_sensor(size, spp), "cube": unit_cube(medium)}
     scene.update(extra or {})
     return scene
@@ -151,20 +154,28 @@ def check_iid_pixels(img, expect, what, rel_bias=0.0):
 #  Analytic
 # ---------------------------------------------------------------------------
 
+@pytest.mark.parametrize("estimator", ["collisions", "mis"])
 @pytest.mark.parametrize("sigma", [0.25, 2.0, 60.0])
-def test01_slab_radiance_mode_analytic(variants_emission, sigma):
+def test01_slab_radiance_mode_analytic(variants_emission, sigma, estimator):
     # Le = 0.5 x (1, 0.5, 0.25) (one-channel emission 0.5 times an RGB
     # colour); d = 1. sigma 60: a stiff case, p = 1 - 1e-26 (every sample
-    # collides, within a voxel of the entry face)
+    # collides, within a voxel of the entry face). "mis": the camera's
+    # emission by ratio tracking (tracking.h), whose pixels are independent
+    # estimates of one value, finite and non-negative
     size, spp = 16, 128
     color = [1.0, 0.5, 0.25]
     med = {"type": "emissiveheterogeneous", "sigma_t": constant_density(), "scale": sigma,
            "albedo": 0.0, "emission": 0.5,
            "color": {"type": "rgb", "value": color}}
-    img = render_np(mi.load_dict(slab_scene(med, size, spp)))
+    img = render_np(mi.load_dict(slab_scene(med, size, spp, estimator=estimator)))
     p = -np.expm1(-sigma)
     le = 0.5 * np.array(color)
-    if mi.is_spectral:
+    if estimator == "mis":
+        assert np.all(np.isfinite(img)) and np.all(img >= 0.0)
+        check_iid_pixels(img, (le if not mi.is_monochromatic else
+                               [0.5 * np.dot([0.212671, 0.715160, 0.072169], color)]) * p,
+                         f"sigma {sigma}, mis", rel_bias=0.01 if mi.is_spectral else 0.0)
+    elif mi.is_spectral:
         check_iid_pixels(img, le * p, f"sigma {sigma}", rel_bias=0.01)
     elif mi.is_monochromatic:
         check_bernoulli_pixels(img, spp, [0.5 * np.dot([0.212671, 0.715160, 0.072169], color)],

@@ -93,11 +93,13 @@ template <typename Float, typename Spectrum> struct Tracking {
         Walk walk;
         Float t, tau;
         Float control_depth;               ///< residual: the controls' optical depth so far
+        Float extra;                       ///< a rate added where the segment's bound is > 0
+                                           ///< (emission_ratio_tracking; else 0, untraced)
         UInt32 steps, collisions;          ///< walk steps, tentative collisions so far
         UInt32 max_steps, max_collisions;  ///< their bounds
         UInt32 tripped;                    ///< the bounds that stopped it (bits)
-        DRJIT_STRUCT(Flight, alive, searching, walk, t, tau, control_depth, steps, collisions,
-                     max_steps, max_collisions, tripped)
+        DRJIT_STRUCT(Flight, alive, searching, walk, t, tau, control_depth, extra, steps,
+                     collisions, max_steps, max_collisions, tripped)
     };
 
     /// The parameter range of `ray` inside the medium's box, up to tmax
@@ -171,7 +173,11 @@ template <typename Float, typename Spectrum> struct Tracking {
      * round to one constant is still sampled (a rate of 0 would drop
      * whatever differs from c there).
      */
-    static std::pair<Float, Float> rate(const TrackedMedium &k, const Walk &w, bool residual) {
+    static std::pair<Float, Float> rate(const TrackedMedium &k, const Walk &w, bool residual,
+                                        const Float *extra = nullptr) {
+        if (extra) // (emission_ratio_tracking: plain tracking at a higher rate)
+            return { k.scale * w.majorant + dr::select(w.majorant > 0.f, *extra, 0.f),
+                     Float(0.f) };
         if (!residual)
             return { k.scale * w.majorant, Float(0.f) };
         Float r = dr::maximum(dr::maximum(w.majorant - w.control, w.control - w.minorant),
@@ -183,13 +189,14 @@ template <typename Float, typename Spectrum> struct Tracking {
     /// (residual: its walk gives the controls)
     static Flight begin_flight(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
                                const Float &maxt, Sampler *sampler, const Mask &active,
-                               bool residual) {
+                               bool residual, const Float *extra = nullptr) {
         Flight f;
         f.alive = active;
         f.searching = false;
         f.walk = k.volume->walk_begin(wr, mint, maxt, active, residual);
         f.t = mint;
         f.control_depth = 0.f;
+        f.extra = extra ? *extra : Float(0.f);
         f.tau = -dr::log(1.f - sampler->next_1d(active));
         f.steps = f.collisions = f.tripped = 0;
         // Walk steps: every step crosses a cell face, and cells are at least
@@ -203,7 +210,7 @@ template <typename Float, typename Spectrum> struct Tracking {
         // majorant's optical depth over the range (a residual rate is at most
         // the majorant, as 0 <= L <= c <= M); T + 10 sqrt(T) + 64 is
         // exceeded with probability below 1e-20
-        Float T = k.max_majorant * len;
+        Float T = (k.max_majorant + f.extra) * len;
         f.max_collisions = to_bound(T + 10.f * dr::sqrt(T) + 64.f);
         return f;
     }
@@ -219,12 +226,12 @@ template <typename Float, typename Spectrum> struct Tracking {
      * packet at once.
      */
     static void next_collision(const TrackedMedium &k, const WalkRay &wr, Flight &flight,
-                               bool residual) {
+                               bool residual, bool with_extra = false) {
         flight.searching = flight.alive;
         dr::tie(flight) = dr::while_loop(
             dr::make_tuple(flight), [](const Flight &f) { return f.searching; },
-            [k, wr, residual](Flight &f) {
-                auto [mu, c] = rate(k, f.walk, residual);
+            [k, wr, residual, with_extra](Flight &f) {
+                auto [mu, c] = rate(k, f.walk, residual, with_extra ? &f.extra : nullptr);
                 Float end = f.walk.segment_end(), t = dr::maximum(f.t, f.walk.segment_begin()),
                       depth = mu * (end - t);
                 Mask found = f.searching && (f.tau < depth), miss = f.searching && !found;
@@ -262,21 +269,25 @@ template <typename Float, typename Spectrum> struct Tracking {
     static Flight sample_t_maj(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
                                const Float &maxt, Sampler *sampler, State &state,
                                LoopBound loop, const Mask &active, Collide &&collide,
-                               const char *label, bool residual = false) {
+                               const char *label, bool residual = false,
+                               const Float *extra = nullptr) {
         struct Loop {
             Flight flight;
             State state;
             Sampler *sampler;
             DRJIT_STRUCT(Loop, flight, state, sampler)
-        } ls = { begin_flight(k, wr, mint, maxt, sampler, active, residual), state, sampler };
+        } ls = { begin_flight(k, wr, mint, maxt, sampler, active, residual, extra), state,
+                 sampler };
+        const bool with_extra = extra != nullptr;
         dr::tie(ls) = dr::while_loop(
             dr::make_tuple(ls), [](const Loop &ls) { return ls.flight.alive; },
-            [k, wr, loop, collide, residual](Loop &ls) {
-                next_collision(k, wr, ls.flight, residual);
+            [k, wr, loop, collide, residual, with_extra](Loop &ls) {
+                next_collision(k, wr, ls.flight, residual, with_extra);
                 Mask hit = ls.flight.alive;
                 if (dr::none_or<false>(hit))
                     return; // (scalar: the walk ended)
-                auto [mu, c] = rate(k, ls.flight.walk, residual);
+                auto [mu, c] = rate(k, ls.flight.walk, residual,
+                                    with_extra ? &ls.flight.extra : nullptr);
                 Mask more = collide(ls.state, ls.flight, mu, c, ls.sampler, hit);
                 dr::masked(ls.flight.tau, hit && more) =
                     -dr::log(1.f - ls.sampler->next_1d(hit && more));
@@ -442,13 +453,27 @@ template <typename Float, typename Spectrum> struct Tracking {
      * EMISSION_RR (weighted), as residual tracking's. The path's own flight
      * then adds no emission on that segment (EmissionMis::skip). Costs a
      * walk of the segment beyond the first real collision.
+     *
+     * `per_voxel` raises the rate of tentative collisions by that many per
+     * voxel the ray crosses, where the segment's bound is above 0 (mu in
+     * the sum is that rate): ratio tracking is unbiased at any rate at or
+     * above the majorant, and a higher one samples the emission at more
+     * points and makes each factor closer to 1. On the fireball (emission
+     * only, max_depth 1), 0, 0.25 and 1 per voxel gave 0.74, 0.15 and 0.066
+     * of the collision estimator's variance for 2.1x, 2.2x and 2.7x its
+     * time; at full depth, 1 per voxel takes the fire's pixels from 0.53 to
+     * 0.21 of its variance for 8 % more time (scattering is the rest).
      */
     static constexpr float EMISSION_RR = 0.1f;
 
     static std::pair<UnpolarizedSpectrum, UInt32>
     emission_ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
-                            const Float &coarse_depth, Sampler *sampler, Mask active) {
+                            const Float &coarse_depth, Sampler *sampler, Mask active,
+                            ScalarFloat per_voxel = 0.f) {
         auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
+        // The extra rate: per_voxel tentative collisions per voxel the ray
+        // crosses (the walk's index-space direction: voxels per unit of t)
+        Float extra = per_voxel * dr::norm(wr.direction);
         struct State {
             UnpolarizedSpectrum weight, emitted;
             DRJIT_STRUCT(State, weight, emitted)
@@ -472,7 +497,8 @@ template <typename Float, typename Spectrum> struct Tracking {
                 }
                 return !dr::all(s_.weight == 0.f);
             },
-            "volpathlocal: emission by ratio tracking");
+            "volpathlocal: emission by ratio tracking", false,
+            per_voxel > 0.f ? &extra : nullptr);
         return { st.emitted, f.tripped };
     }
 

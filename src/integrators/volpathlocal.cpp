@@ -94,6 +94,18 @@ Volumetric path tracer with local majorants (:monosp:`volpathlocal`)
      inside the emission). See docs/research/issue35_nee.md.
      (Default: ``mis``)
 
+ * - emission_rate
+   - |float|
+   - With ``emission_sampling`` ``mis`` or ``nee``: the emission seen from
+     the camera is estimated by ratio tracking along the camera's segment,
+     at the majorant's rate of tentative collisions plus this many per
+     voxel the ray crosses (where the majorant is above 0). More samples of
+     the emission along the ray, each weighted by the running transmittance
+     estimate: unbiased at any rate. Measured on a fireball (the fire seen
+     directly, emission only): 0, 0.25 and 1 give 0.74, 0.15 and 0.07 of
+     the collision estimator's variance at 2.1x, 2.2x and 2.7x its time.
+     (Default: 1)
+
  * - shadow_estimates
    - |int|
    - How many independent estimates of a tracked medium's
@@ -229,6 +241,10 @@ public:
         else
             Throw("volpathlocal: emission_sampling must be \"mis\", \"collisions\" or \"nee\", "
                   "got \"%s\"", emission);
+        m_emission_rate = props.get<ScalarFloat>("emission_rate", 1.f);
+        if (!(m_emission_rate >= 0.f && std::isfinite(m_emission_rate)))
+            Throw("volpathlocal: emission_rate must be a finite value >= 0, got %f",
+                  m_emission_rate);
         m_max_ratio = props.get<ScalarFloat>("max_majorant_ratio", 0.5f);
         if (!(m_max_ratio >= 0.f && m_max_ratio <= 1.f))
             Throw("volpathlocal: max_majorant_ratio must be in [0, 1], got %f", m_max_ratio);
@@ -449,7 +465,7 @@ public:
                     Mask camera = in_k && depth == 0u;
                     if (k.emissive && camera_emission && dr::any_or<true>(camera)) {
                         auto [e, tripped_e] = Tracker::emission_ratio_tracking(
-                            k, ray, si.t, m_coarse_depth_var, sampler, camera);
+                            k, ray, si.t, m_coarse_depth_var, sampler, camera, m_emission_rate);
                         dr::masked(result, camera) += throughput * depolarizer<Spectrum>(e);
                         dr::masked(ls.tripped, camera) |= tripped_e;
                     }
@@ -1077,6 +1093,7 @@ private:
     /// estimation with MIS, or (tests) by next-event estimation alone where
     /// it applies
     enum class EmissionSampling { Mis, Collisions, Nee } m_emission_sampling = EmissionSampling::Mis;
+    ScalarFloat m_emission_rate = 1.f; ///< the camera segment's extra samples per voxel
     mutable bool m_nee_media = false;  ///< prepare(): some medium is sampled
     mutable uint32_t m_last_nee = 0;   ///< ... the last one is m_tracked[m_last_nee - 1]
     mutable std::vector<TrackedMedium> m_tracked;
