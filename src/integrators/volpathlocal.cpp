@@ -638,28 +638,29 @@ public:
             // (issue 35), from the same vertices, with MIS against the
             // emission their flights collect (tracking.h's EmissionMis)
             if (m_nee_media && dr::any_or<true>(active_e)) {
-                auto [emitted, d, p_nee] = sample_emissive_media(
-                    mei, si, active_e_medium, active_e_surface, scene, sampler, medium, channel,
-                    ls.tripped, active_e);
-                auto weight = [this](const Float &p_point, const Float &p_dir) {
-                    return dr::select(p_point > 0.f,
-                                      m_emission_sampling == EmissionSampling::Nee
-                                          ? Float(1.f) : dr::square(p_point) / (dr::square(p_point) + dr::square(p_dir)),
-                                      0.f);
+                // The phase function's or BSDF's value and pdf toward the
+                // sampled point (its MIS weight is known before the shadow
+                // ray: sample_emissive_media's Russian roulette)
+                auto toward = [&](const Vector3f &d) {
+                    Spectrum f(0.f);
+                    Float p_dir = 0.f;
+                    if (dr::any_or<true>(active_e_medium)) {
+                        auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, d, active_e_medium);
+                        dr::masked(f, active_e_medium) = phase_val;
+                        dr::masked(p_dir, active_e_medium) = phase_pdf;
+                    }
+                    if (dr::any_or<true>(active_e_surface)) {
+                        Vector3f wo = si.to_local(d);
+                        Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e_surface);
+                        dr::masked(f, active_e_surface) = si.to_world_mueller(bsdf_val, -wo, si.wi);
+                        dr::masked(p_dir, active_e_surface) = bsdf->pdf(ctx, si, wo, active_e_surface);
+                    }
+                    return std::make_pair(f, p_dir);
                 };
-                if (dr::any_or<true>(active_e_medium)) {
-                    auto [phase_val, phase_pdf] = phase->eval_pdf(phase_ctx, mei, d, active_e_medium);
-                    dr::masked(result, active_e_medium) +=
-                        throughput * phase_val * emitted * weight(p_nee, phase_pdf);
-                }
-                if (dr::any_or<true>(active_e_surface)) {
-                    Vector3f wo = si.to_local(d);
-                    Spectrum bsdf_val = bsdf->eval(ctx, si, wo, active_e_surface);
-                    bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi);
-                    Float bsdf_pdf = bsdf->pdf(ctx, si, wo, active_e_surface);
-                    dr::masked(result, active_e_surface) +=
-                        throughput * bsdf_val * emitted * weight(p_nee, bsdf_pdf);
-                }
+                Spectrum contribution = sample_emissive_media(
+                    mei, si, active_e_medium, active_e_surface, scene, sampler, medium, channel,
+                    ls.tripped, active_e, toward);
+                dr::masked(result, active_e) += throughput * contribution;
             }
 
             // volpathlocal: phase sampling, from the medium block above
@@ -750,14 +751,22 @@ public:
     // volpathlocal: next-event estimation toward the emissive media (issue
     // 35; docs/research/issue35_nee.md): a medium chosen by its emitted
     // power, a point x of it by its emission table, the shadow ray to x;
-    // returns T sigma_a(x) Le(x) / (p r^2) (0 unless the shadow ray ends in
-    // that medium), the direction to x, and p r^2 (the solid-angle density,
-    // for MIS), p the point's density per unit volume
-    std::tuple<Spectrum, Vector3f, Float>
-    sample_emissive_media(const MediumInteraction3f &mei, const SurfaceInteraction3f &si_ref,
-                          const Mask &active_medium, const Mask &active_surface,
-                          const Scene *scene, Sampler *sampler, MediumPtr medium,
-                          UInt32 channel, UInt32 &tripped, Mask active) const {
+    // returns f T sigma_a(x) Le(x) w / (p r^2) (0 unless the shadow ray
+    // ends in that medium), p the point's density per unit volume, f and
+    // the direction's pdf p_dir from toward(d) (the vertex's phase function
+    // or BSDF), w the power heuristic's weight of p r^2 against p_dir.
+    // Russian roulette before the shadow ray: a point whose MIS weight is
+    // below NEE_RR (the collision estimator covers it: close to the vertex,
+    // where r^2 is small) is traced with probability w / NEE_RR, divided by
+    // it; so is nothing whose emission at x is 0
+    static constexpr float NEE_RR = 0.25f;
+
+    template <typename Toward>
+    Spectrum sample_emissive_media(const MediumInteraction3f &mei, const SurfaceInteraction3f &si_ref,
+                                   const Mask &active_medium, const Mask &active_surface,
+                                   const Scene *scene, Sampler *sampler, MediumPtr medium,
+                                   UInt32 channel, UInt32 &tripped, Mask active,
+                                   Toward &&toward) const {
         Interaction3f ref = dr::zeros<Interaction3f>();
         dr::masked(ref, active_medium) = Interaction3f(mei);
         dr::masked(ref, active_surface) = Interaction3f(si_ref);
@@ -790,17 +799,13 @@ public:
         active &= r2 > 0.f;
         Spectrum result(0.f);
         if (dr::none_or<false>(active))
-            return { result, d, Float(0.f) };
+            return result;
 
         DirectionSample3f ds = dr::zeros<DirectionSample3f>();
         ds.p = x;
         ds.d = d;
         ds.dist = dr::sqrt(r2);
         ds.pdf = pdf * r2;
-        Ray3f ray = ref.spawn_ray_to(x);
-        auto [tr, end_medium] = trace_shadow(ray, si_ref, active_surface, ds, scene, sampler,
-                                             medium, channel, tripped, active);
-        active &= end_medium == target;
 
         // What x emits: sigma_a Le of its medium
         MediumInteraction3f mx = dr::zeros<MediumInteraction3f>();
@@ -818,8 +823,24 @@ public:
             DRJIT_MARK_USED(sigma_n);
             dr::masked(emitted, in_k) = (sigma_t - sigma_s) * k.emissive->eval_emission(mx, in_k);
         }
-        dr::masked(result, active) = tr * depolarizer<Spectrum>(emitted) / ds.pdf;
-        return { result, d, dr::select(active, ds.pdf, 0.f) };
+        active &= dr::any(emitted != 0.f);
+
+        // The MIS weight, and the Russian roulette on it
+        auto [f, p_dir] = toward(d);
+        Float w = m_emission_sampling == EmissionSampling::Nee
+                      ? Float(1.f)
+                      : dr::square(ds.pdf) / (dr::square(ds.pdf) + dr::square(p_dir));
+        Float q = dr::minimum(w * (1.f / NEE_RR), 1.f);
+        active &= (q >= 1.f) || (sampler->next_1d(active) < q);
+        if (dr::none_or<false>(active))
+            return result;
+
+        Ray3f ray = ref.spawn_ray_to(x);
+        auto [tr, end_medium] = trace_shadow(ray, si_ref, active_surface, ds, scene, sampler,
+                                             medium, channel, tripped, active);
+        active &= end_medium == target;
+        dr::masked(result, active) = f * tr * depolarizer<Spectrum>(emitted) * (w / (q * ds.pdf));
+        return result;
     }
 
     // volpathlocal: sample_emitter's shadow ray, from `ray` (a ray from the
