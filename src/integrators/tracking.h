@@ -80,9 +80,6 @@ template <typename Float, typename Spectrum> struct Tracking {
         Point3f origin;
         Float dir_pdf;
         bool nee_only = false;
-        /// Lanes whose segment's emission another estimator adds (the camera
-        /// segment: emission_ratio_tracking): the flight adds none
-        Mask skip = false;
     };
 
     /// A flight through a tracked medium: the walk, the position t along the
@@ -94,7 +91,7 @@ template <typename Float, typename Spectrum> struct Tracking {
         Float t, tau;
         Float control_depth;               ///< residual: the controls' optical depth so far
         Float extra;                       ///< a rate added where the segment's bound is > 0
-                                           ///< (emission_ratio_tracking; else 0, untraced)
+                                           ///< (camera_tracking; else 0, untraced)
         UInt32 steps, collisions;          ///< walk steps, tentative collisions so far
         UInt32 max_steps, max_collisions;  ///< their bounds
         UInt32 tripped;                    ///< the bounds that stopped it (bits)
@@ -175,7 +172,7 @@ template <typename Float, typename Spectrum> struct Tracking {
      */
     static std::pair<Float, Float> rate(const TrackedMedium &k, const Walk &w, bool residual,
                                         const Float *extra = nullptr) {
-        if (extra) // (emission_ratio_tracking: plain tracking at a higher rate)
+        if (extra) // (camera_tracking: plain tracking at a higher rate)
             return { k.scale * w.majorant + dr::select(w.majorant > 0.f, *extra, 0.f),
                      Float(0.f) };
         if (!residual)
@@ -358,14 +355,14 @@ template <typename Float, typename Spectrum> struct Tracking {
                 auto [sigma_s, sigma_n, sigma_t] = coefficients(k, mei, sampler_, hit);
                 DRJIT_MARK_USED(sigma_n);
                 if (k.emissive) { // (traced only for an emissive medium)
-                    Float w = dr::select(mis.skip, 0.f, 1.f);
+                    Float w = 1.f;
                     if (k.nee) { // (traced only where next-event estimation samples it)
                         Mask on = hit && mis.on;
                         Float p_nee = k.select * k.emissive->emission_point_pdf(mei.p, on) *
                                       dr::squared_norm(mei.p - mis.origin);
                         Float w_mis = mis.nee_only
                             ? Float(0.f) : dr::select(p_nee > 0.f, dr::square(mis.dir_pdf) / (dr::square(mis.dir_pdf) + dr::square(p_nee)), 1.f);
-                        w = dr::select(mis.skip, 0.f, dr::select(on, w_mis, 1.f));
+                        w = dr::select(on, w_mis, 1.f);
                     }
                     dr::masked(s.emitted, hit) += s.weight * (sigma_t - sigma_s) *
                                                   k.emissive->eval_emission(mei, hit) * w / mu;
@@ -393,6 +390,97 @@ template <typename Float, typename Spectrum> struct Tracking {
         c.mei.combined_extinction = st.majorant;
         // The null collisions' factors apply to every path, real collision
         // or not (they are 1 for a grey extinction)
+        c.weight = st.weight * dr::select(st.real, st.sigma_s / dr::mean(st.sigma_t),
+                                          UnpolarizedSpectrum(1.f));
+        return c;
+    }
+
+    /**
+     * The camera's segment through an emissive medium (issue 35: the fire
+     * seen directly): delta tracking's first real collision, as
+     * delta_tracking() (the path's weight and vertex), and the emission
+     * along the whole segment by ratio tracking, on the same tentative
+     * collisions, in one walk. Delta tracking collects the emission only up
+     * to its first real collision (its survival past a tentative collision
+     * is 0 or 1); here every tentative collision t_i adds
+     *     W_i sigma_a(t_i) Le(t_i) / mu,   W_i = prod_{j < i} (mu - mu_t(t_j)) / mu,
+     * the survival replaced by its estimate, to the end of the medium. The
+     * product over the Poisson points before t is unbiased for T(t) (ratio
+     * tracking's identity) and independent of the point at t, so the sum's
+     * mean is int T sigma_a Le, delta tracking's, with the survival's
+     * variance averaged out. Russian roulette ends W below EMISSION_RR
+     * (weighted); the walk goes on while the path has no real collision or
+     * W is above 0.
+     *
+     * `per_voxel` raises the rate of tentative collisions by that many per
+     * voxel the ray crosses, where the segment's bound is above 0 (mu is
+     * that rate): delta and ratio tracking are unbiased at any rate at or
+     * above the majorant, and a higher one samples the emission at more
+     * points. On the fireball (emission only, max_depth 1), 0, 0.25 and 1
+     * per voxel gave 0.74, 0.15 and 0.066 of the collision estimator's
+     * variance; at full depth 1 per voxel takes the fire's pixels from 0.53
+     * to 0.21 of its variance (scattering is the rest).
+     */
+    static constexpr float EMISSION_RR = 0.1f;
+
+    static Collision camera_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
+                                     const Float &coarse_depth, Sampler *sampler, Mask active,
+                                     ScalarFloat per_voxel) {
+        auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
+        // (per voxel: the walk's index-space direction is voxels per unit of t)
+        Float extra = per_voxel * dr::norm(wr.direction);
+        struct State {
+            UnpolarizedSpectrum weight, ratio, sigma_s, sigma_t, emitted;
+            Float majorant, t_real;
+            Mask real;
+            DRJIT_STRUCT(State, weight, ratio, sigma_s, sigma_t, emitted, majorant, t_real, real)
+        } st = { UnpolarizedSpectrum(1.f), UnpolarizedSpectrum(1.f),
+                 dr::zeros<UnpolarizedSpectrum>(), dr::zeros<UnpolarizedSpectrum>(),
+                 dr::zeros<UnpolarizedSpectrum>(), Float(0.f), Float(0.f), Mask(false) };
+        Flight f = sample_t_maj(
+            k, wr, mint, maxt, sampler, st, DeltaLoop, active,
+            [k, ray, mint](State &s, const Flight &f_, const Float &mu, const Float & /* c */,
+                           Sampler *sampler_, const Mask &hit) {
+                MediumInteraction3f mei = interaction_at(k, ray, f_.t, mint);
+                auto [sigma_s, sigma_n, sigma_t] = coefficients(k, mei, sampler_, hit);
+                DRJIT_MARK_USED(sigma_n);
+                // The emission, by ratio tracking
+                dr::masked(s.emitted, hit) += s.ratio * (sigma_t - sigma_s) *
+                                              k.emissive->eval_emission(mei, hit) / mu;
+                dr::masked(s.ratio, hit) *= (mu - sigma_t) / mu;
+                Float w = dr::max(s.ratio);
+                Mask low = hit && (w < EMISSION_RR) && (w > 0.f);
+                if (dr::any_or<true>(low)) {
+                    Float q = w * (1.f / EMISSION_RR);
+                    Float xi = sampler_->next_1d(low);
+                    dr::masked(s.ratio, low) = dr::select(xi < q, s.ratio / q, 0.f);
+                }
+                // The path's first real collision, as delta_tracking's
+                Mask open = hit && !s.real;
+                Float xi = sampler_->next_1d(open);
+                Float p_real = dr::mean(sigma_t) / mu;
+                Mask real = open && (xi < p_real), null = open && !real;
+                dr::masked(s.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));
+                dr::masked(s.sigma_s, real) = sigma_s;
+                dr::masked(s.sigma_t, real) = sigma_t;
+                dr::masked(s.majorant, real) = mu;
+                dr::masked(s.t_real, real) = f_.t;
+                s.real |= real;
+                return !s.real || !dr::all(s.ratio == 0.f);
+            },
+            "volpathlocal: the camera's segment", false, per_voxel > 0.f ? &extra : nullptr);
+
+        Collision c;
+        c.real = st.real;
+        c.tripped = f.tripped;
+        c.emitted = st.emitted;
+        Float t = dr::select(st.real, st.t_real, f.t);
+        c.mei = interaction_at(k, ray, dr::select(st.real, t, dr::Infinity<Float>), mint);
+        c.mei.p = ray(t);
+        c.mei.sigma_s = st.sigma_s;
+        c.mei.sigma_t = st.sigma_t;
+        c.mei.sigma_n = st.majorant - st.sigma_t;
+        c.mei.combined_extinction = st.majorant;
         c.weight = st.weight * dr::select(st.real, st.sigma_s / dr::mean(st.sigma_t),
                                           UnpolarizedSpectrum(1.f));
         return c;
@@ -437,70 +525,6 @@ template <typename Float, typename Spectrum> struct Tracking {
      */
     /// Residual ratio tracking's Russian roulette threshold (see ratio_tracking)
     static constexpr float RESIDUAL_RR = 0.3f;
-
-    /**
-     * The emission along `ray` through emissive medium k up to tmax, by
-     * ratio tracking (issue 35: the fire seen directly). Delta tracking
-     * collects it only up to its first real collision (its survival past a
-     * tentative collision is 0 or 1); here every tentative collision t_i,
-     * sampled at rate mu, adds
-     *     W_i sigma_a(t_i) Le(t_i) / mu,   W_i = prod_{j < i} (mu - mu_t(t_j)) / mu,
-     * the survival replaced by its estimate, to the end of the medium. The
-     * product over the Poisson points before t is unbiased for T(t) (ratio
-     * tracking's identity) and independent of the point at t, so the sum's
-     * mean is int T sigma_a Le: the same as delta tracking's, with the
-     * survival's variance averaged out. Russian roulette below
-     * EMISSION_RR (weighted), as residual tracking's. The path's own flight
-     * then adds no emission on that segment (EmissionMis::skip). Costs a
-     * walk of the segment beyond the first real collision.
-     *
-     * `per_voxel` raises the rate of tentative collisions by that many per
-     * voxel the ray crosses, where the segment's bound is above 0 (mu in
-     * the sum is that rate): ratio tracking is unbiased at any rate at or
-     * above the majorant, and a higher one samples the emission at more
-     * points and makes each factor closer to 1. On the fireball (emission
-     * only, max_depth 1), 0, 0.25 and 1 per voxel gave 0.74, 0.15 and 0.066
-     * of the collision estimator's variance for 2.1x, 2.2x and 2.7x its
-     * time; at full depth, 1 per voxel takes the fire's pixels from 0.53 to
-     * 0.21 of its variance for 8 % more time (scattering is the rest).
-     */
-    static constexpr float EMISSION_RR = 0.1f;
-
-    static std::pair<UnpolarizedSpectrum, UInt32>
-    emission_ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,
-                            const Float &coarse_depth, Sampler *sampler, Mask active,
-                            ScalarFloat per_voxel = 0.f) {
-        auto [mint, maxt, wr] = span(k, ray, tmax, coarse_depth, active);
-        // The extra rate: per_voxel tentative collisions per voxel the ray
-        // crosses (the walk's index-space direction: voxels per unit of t)
-        Float extra = per_voxel * dr::norm(wr.direction);
-        struct State {
-            UnpolarizedSpectrum weight, emitted;
-            DRJIT_STRUCT(State, weight, emitted)
-        } st = { UnpolarizedSpectrum(1.f), dr::zeros<UnpolarizedSpectrum>() };
-        Flight f = sample_t_maj(
-            k, wr, mint, maxt, sampler, st, RatioLoop, active,
-            [k, ray, mint](State &s_, const Flight &f_, const Float &mu, const Float & /* c */,
-                           Sampler *sampler_, const Mask &hit) {
-                MediumInteraction3f mei = interaction_at(k, ray, f_.t, mint);
-                auto [sigma_s, sigma_n, sigma_t] = coefficients(k, mei, sampler_, hit);
-                DRJIT_MARK_USED(sigma_n);
-                dr::masked(s_.emitted, hit) += s_.weight * (sigma_t - sigma_s) *
-                                               k.emissive->eval_emission(mei, hit) / mu;
-                dr::masked(s_.weight, hit) *= (mu - sigma_t) / mu;
-                Float w = dr::max(s_.weight);
-                Mask low = hit && (w < EMISSION_RR);
-                if (dr::any_or<true>(low)) {
-                    Float q = w * (1.f / EMISSION_RR);
-                    Float xi = sampler_->next_1d(low);
-                    dr::masked(s_.weight, low) = dr::select(xi < q, s_.weight / q, 0.f);
-                }
-                return !dr::all(s_.weight == 0.f);
-            },
-            "volpathlocal: emission by ratio tracking", false,
-            per_voxel > 0.f ? &extra : nullptr);
-        return { st.emitted, f.tripped };
-    }
 
     static std::pair<UnpolarizedSpectrum, UInt32>
     ratio_tracking(const TrackedMedium &k, const Ray3f &ray, const Float &tmax,

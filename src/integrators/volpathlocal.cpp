@@ -452,22 +452,25 @@ public:
                 typename Tracker::EmissionMis emission_mis{
                     depth > 0u && !specular_chain, last_scatter_event.p,
                     last_scatter_direction_pdf, m_emission_sampling == EmissionSampling::Nee };
-                // (the camera segment's emission: by ratio tracking, below)
                 const bool camera_emission = m_emission_sampling != EmissionSampling::Collisions;
-                if (camera_emission)
-                    emission_mis.skip = depth == 0u;
                 for (const TrackedMedium &k : m_tracked) {
                     Mask in_k = tracked && (medium == MediumPtr(k.medium));
                     if (dr::none_or<false>(in_k))
                         continue; // (scalar variants: not this medium)
-                    // volpathlocal: the emission the camera sees, by ratio
-                    // tracking through the whole segment (tracking.h)
+                    // volpathlocal: the camera's segment through an emissive
+                    // medium: its collision and the emission along all of it
+                    // in one walk (tracking.h camera_tracking)
                     Mask camera = in_k && depth == 0u;
                     if (k.emissive && camera_emission && dr::any_or<true>(camera)) {
-                        auto [e, tripped_e] = Tracker::emission_ratio_tracking(
+                        typename Tracker::Collision c = Tracker::camera_tracking(
                             k, ray, si.t, m_coarse_depth_var, sampler, camera, m_emission_rate);
-                        dr::masked(result, camera) += throughput * depolarizer<Spectrum>(e);
-                        dr::masked(ls.tripped, camera) |= tripped_e;
+                        dr::masked(mei, camera) = c.mei;
+                        dr::masked(result, camera) += throughput * depolarizer<Spectrum>(c.emitted);
+                        dr::masked(throughput, camera) *= c.weight;
+                        dr::masked(ls.tripped, camera) |= c.tripped;
+                        in_k &= !camera;
+                        if (dr::none_or<false>(in_k))
+                            continue;
                     }
                     typename Tracker::Collision c = Tracker::delta_tracking(
                         k, ray, si.t, m_coarse_depth_var, sampler, in_k, emission_mis);
