@@ -367,23 +367,41 @@ template <typename Float, typename Spectrum> struct Tracking {
                     dr::masked(s.emitted, hit) += s.weight * (sigma_t - sigma_s) *
                                                   k.emissive->eval_emission(mei, hit) * w / mu;
                 }
-                Float p_real = dr::mean(sigma_t) / mu;
-                Mask real = hit && (xi < p_real), null = hit && !real;
-                dr::masked(s.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));
-                dr::masked(s.sigma_s, real) = sigma_s;
-                dr::masked(s.sigma_t, real) = sigma_t;
-                dr::masked(s.majorant, real) = mu;
-                s.real |= real;
-                return !real;
+                return !decide(s, hit, xi, mu, sigma_s, sigma_t);
             },
             "volpathlocal: delta tracking");
+        return collision_of(k, ray, mint, st, f.t, f.tripped);
+    }
 
+    /// Delta tracking's choice at a tentative collision of the lanes
+    /// `open`: real with probability P = mean(mu_t) / mu (xi uniform), its
+    /// coefficients and majorant then kept in the state; null otherwise,
+    /// the path's weight times (mu - mu_t) / (mu (1 - P)). Returns the
+    /// real lanes
+    template <typename S>
+    static Mask decide(S &s, const Mask &open, const Float &xi, const Float &mu,
+                       const UnpolarizedSpectrum &sigma_s, const UnpolarizedSpectrum &sigma_t) {
+        Float p_real = dr::mean(sigma_t) / mu;
+        Mask real = open && (xi < p_real), null = open && !real;
+        dr::masked(s.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));
+        dr::masked(s.sigma_s, real) = sigma_s;
+        dr::masked(s.sigma_t, real) = sigma_t;
+        dr::masked(s.majorant, real) = mu;
+        s.real |= real;
+        return real;
+    }
+
+    /// The Collision of a flight's state: its real collision at t (else
+    /// none, the flight having ended at t)
+    template <typename S>
+    static Collision collision_of(const TrackedMedium &k, const Ray3f &ray, const Float &mint,
+                                  const S &st, const Float &t, const UInt32 &tripped) {
         Collision c;
         c.real = st.real;
-        c.tripped = f.tripped;
+        c.tripped = tripped;
         c.emitted = st.emitted;
-        c.mei = interaction_at(k, ray, dr::select(st.real, f.t, dr::Infinity<Float>), mint);
-        c.mei.p = ray(f.t);
+        c.mei = interaction_at(k, ray, dr::select(st.real, t, dr::Infinity<Float>), mint);
+        c.mei.p = ray(t);
         c.mei.sigma_s = st.sigma_s;
         c.mei.sigma_t = st.sigma_t;
         c.mei.sigma_n = st.majorant - st.sigma_t;
@@ -458,32 +476,12 @@ template <typename Float, typename Spectrum> struct Tracking {
                 // The path's first real collision, as delta_tracking's
                 Mask open = hit && !s.real;
                 Float xi = sampler_->next_1d(open);
-                Float p_real = dr::mean(sigma_t) / mu;
-                Mask real = open && (xi < p_real), null = open && !real;
-                dr::masked(s.weight, null) *= (mu - sigma_t) / (mu * (1.f - p_real));
-                dr::masked(s.sigma_s, real) = sigma_s;
-                dr::masked(s.sigma_t, real) = sigma_t;
-                dr::masked(s.majorant, real) = mu;
+                Mask real = decide(s, open, xi, mu, sigma_s, sigma_t);
                 dr::masked(s.t_real, real) = f_.t;
-                s.real |= real;
                 return !s.real || !dr::all(s.ratio == 0.f);
             },
             "volpathlocal: the camera's segment", false, per_voxel > 0.f ? &extra : nullptr);
-
-        Collision c;
-        c.real = st.real;
-        c.tripped = f.tripped;
-        c.emitted = st.emitted;
-        Float t = dr::select(st.real, st.t_real, f.t);
-        c.mei = interaction_at(k, ray, dr::select(st.real, t, dr::Infinity<Float>), mint);
-        c.mei.p = ray(t);
-        c.mei.sigma_s = st.sigma_s;
-        c.mei.sigma_t = st.sigma_t;
-        c.mei.sigma_n = st.majorant - st.sigma_t;
-        c.mei.combined_extinction = st.majorant;
-        c.weight = st.weight * dr::select(st.real, st.sigma_s / dr::mean(st.sigma_t),
-                                          UnpolarizedSpectrum(1.f));
-        return c;
+        return collision_of(k, ray, mint, st, dr::select(st.real, st.t_real, f.t), f.tripped);
     }
 
     /**
