@@ -10,8 +10,9 @@ time, by region.
 
 Cases (bench/emission.py's `on` configuration: the medium on a floor under
 a dim sky, temperature mode): `fireball` (`vdb2nvdb generate
-fireball_<--n>`) and `usd_heat` (../shared/data/usd_density_heat_fog.vdb;
-skipped without it). Per case and variant, one child process
+fireball_<--n>`), `fireball_self_lit` (the same without floor and sky: smoke
+lit only by its own fire) and `usd_heat`
+(../shared/data/usd_density_heat_fog.vdb; skipped without it). Per case and variant, one child process
 (bench/harness.py) renders, for each mode in turn, an spp sweep (each
 point the minimum time of --repeats turntables, after an untimed render
 at that spp that compiles its kernels), against one reference per case
@@ -45,15 +46,25 @@ import emission  # noqa: E402  (the scenes, files and region masks)
 import harness  # noqa: E402
 
 MODES = ["collisions", "mis", "nee"]
+# bench/emission.py's cases, and the fireball without floor and sky: smoke
+# lit only by its own fire
+CASES = ["fireball", "fireball_self_lit", "usd_heat"]
 
 
 def log(msg):
     print(msg, flush=True)
 
 
+def label(case):
+    """A case's name in this benchmark's keys and report"""
+    return case.get("label", case["name"])
+
+
 def scene(mi, case, mode, res, spp, sensors):
     d = emission.scene_dict(mi, case, "on", res, spp, sensors)
     d["integrator"]["emission_sampling"] = mode
+    if case.get("self_lit"):  # (smoke lit only by its own fire: no floor, no sky)
+        del d["floor"], d["sky"]
     return d
 
 
@@ -63,7 +74,7 @@ def child(spec):
     dr, mi = mitsuba_for(spec["variant"], spec["build"])
     out, images = {"cases": {}}, {}
     for case in spec["cases"]:
-        n = case["name"]
+        n = label(case)
         res = out["cases"][n] = {}
         if spec["mode"] == "reference":
             s = mi.load_dict(scene(mi, case, "mis", spec["res"], spec["ref_spp"], spec["sensors"]))
@@ -125,7 +136,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--cases", nargs="+", choices=emission.CASES, default=emission.CASES)
+    ap.add_argument("--cases", nargs="+", choices=CASES, default=CASES)
     ap.add_argument("--variants", nargs="+", default=["llvm_ad_rgb", "scalar_rgb"])
     ap.add_argument("--modes", nargs="+", choices=MODES, default=MODES)
     ap.add_argument("--n", type=int, default=128)
@@ -153,6 +164,9 @@ def main():
     for name in a.cases:
         if name == "fireball":
             case_list.append({"name": name, "file": emission.fireball_file(a.data, a.build, a.n)})
+        elif name == "fireball_self_lit":
+            case_list.append({"name": "fireball", "label": name, "self_lit": True,
+                              "file": emission.fireball_file(a.data, a.build, a.n)})
         elif os.path.exists(emission.SHARED_USD):
             case_list.append({"name": name, "file": emission.usd_file(a.data, a.build)})
         else:
@@ -163,25 +177,25 @@ def main():
     sos = [os.path.join(a.build, "plugins", p + ".so") for p in emission.PLUGINS]
     refs, missing = {}, []
     for case in case_list:
-        key = (f"nee_{case['name']}__r{a.res}x{a.sensors}__s{a.ref_spp}x{a.ref_passes}__{a.ref_variant}__"
+        key = (f"nee_{label(case)}__r{a.res}x{a.sensors}__s{a.ref_spp}x{a.ref_passes}__{a.ref_variant}__"
                f"{emission.source_key(emission.volumes, emission.sensor, emission.scene_dict, scene, emission.region_ids, emission.MEDIUM, emission.FIRE)}__"
                f"{emission.file_key([case['file']] + sos)}")
         case["ref"] = os.path.join(a.data, "refs", key + ".npz")
         if os.path.exists(case["ref"]):
             with np.load(case["ref"]) as z:
-                refs[case["name"]] = {k: z[k] for k in z.files}
+                refs[label(case)] = {k: z[k] for k in z.files}
         else:
             missing.append(case)
     if missing:
         log(f"== references (mis, {a.ref_variant}, {a.ref_spp} spp): " +
-            ", ".join(c["name"] for c in missing))
+            ", ".join(label(c) for c in missing))
         spec = {"mode": "reference", "variant": a.ref_variant, "build": a.build,
-                "cases": [{"name": c["name"], "file": c["file"]} for c in missing],
+                "cases": [{k: c[k] for k in c if k != "ref"} for c in missing],
                 "res": a.res, "sensors": a.sensors, "ref_spp": a.ref_spp,
                 "ref_passes": a.ref_passes}
         _, imgs = run(spec, work, "nee_reference")
         for c in missing:
-            n = c["name"]
+            n = label(c)
             d = {"mean": imgs[f"{n}__mean"], "var_of_mean": imgs[f"{n}__var_of_mean"],
                  "regions": imgs[f"{n}__regions"]}
             os.makedirs(os.path.dirname(c["ref"]), exist_ok=True)
@@ -192,13 +206,13 @@ def main():
     for variant in a.variants:
         sweep = a.scalar_sweep if variant.startswith("scalar") else a.sweep
         spec = {"mode": "sweep", "variant": variant, "build": a.build, "modes": a.modes,
-                "cases": [{"name": c["name"], "file": c["file"]} for c in case_list],
+                "cases": [{k: c[k] for k in c if k != "ref"} for c in case_list],
                 "res": a.res, "sensors": a.sensors, "sweep": sweep, "repeats": a.repeats}
         log(f"== {variant}: sweep {sweep}")
         out, imgs = run(spec, work, f"nee_{variant}")
         measured[variant] = out
         for c in case_list:
-            n = c["name"]
+            n = label(c)
             ref = refs[n]
             masks = emission.region_masks(ref["regions"], ref["mean"])
             level = float(ref["mean"].mean())
@@ -245,7 +259,7 @@ def write_report(a, case_list, errors, measured, notes, started, elapsed):
             def series(mode, region):
                 out = []
                 for e in errors:
-                    if (e["case"], e["variant"], e["mode"]) == (c["name"], v, mode):
+                    if (e["case"], e["variant"], e["mode"]) == (label(c), v, mode):
                         err = e["rel_rmse"] if region == "image" else \
                             e["regions"][region]["rel_rmse"]
                         if err:
@@ -259,17 +273,17 @@ def write_report(a, case_list, errors, measured, notes, started, elapsed):
                     res = metrics.error_at_equal_time(series("collisions", r), series(mode, r))
                     cells.append("–" if res["ratio"] is None else
                                  f"{res['ratio']:.2f}, {res['cost_ratio']:.1f}×")
-                L.append(f"| {c['name']} | {v} | {mode} | " + " | ".join(cells) + " |")
+                L.append(f"| {label(c)} | {v} | {mode} | " + " | ".join(cells) + " |")
     L += ["", "## The emission table", "",
           "Bytes and build time (at the first render) against the emission grid's bytes and "
           "the scene's load time (both grids, llvm_ad_rgb: the first variant).", "",
           "| case | table bytes | emission grid bytes | share | build [s] | scene load [s] |",
           "|---|---:|---:|---:|---:|---:|"]
     for c in case_list:
-        t = next((m["cases"][c["name"]].get("table") for m in measured.values()
-                  if m["cases"][c["name"]].get("table")), None)
+        t = next((m["cases"][label(c)].get("table") for m in measured.values()
+                  if m["cases"][label(c)].get("table")), None)
         if t:
-            L.append(f"| {c['name']} | {t['bytes']:.0f} | {t['grid_bytes']:.0f} | "
+            L.append(f"| {label(c)} | {t['bytes']:.0f} | {t['grid_bytes']:.0f} | "
                      f"{100 * t['bytes'] / t['grid_bytes']:.2f} % | {t['seconds']:.3f} | "
                      f"{t['scene_load_s']:.3f} |")
     L += ["", "## Every point", "",
