@@ -75,6 +75,18 @@ template <typename Float, typename Spectrum> struct Tracking {
      * seeds. `nee_only` gives the flight weight 0 where `on` (next-event
      * estimation alone covers it: tests)
      */
+    /// Veach's power heuristic (beta 2): the weight of a sample of density
+    /// a against another technique's density b for the same point; the
+    /// arithmetic of volpath's mis_weight(), which next-event estimation's
+    /// side (volpathlocal's sample_emissive_media) calls, so that the two
+    /// weights of a point sum to 1
+    static Float power_heuristic(Float a, Float b) {
+        a *= a;
+        b *= b;
+        Float w = a / (a + b);
+        return dr::select(dr::isfinite(w), w, 0.f);
+    }
+
     struct EmissionMis {
         Mask on;
         Point3f origin;
@@ -361,7 +373,8 @@ template <typename Float, typename Spectrum> struct Tracking {
                         Float p_nee = k.select * k.emissive->emission_point_pdf(mei.p, on) *
                                       dr::squared_norm(mei.p - mis.origin);
                         Float w_mis = mis.nee_only
-                            ? Float(0.f) : dr::select(p_nee > 0.f, dr::square(mis.dir_pdf) / (dr::square(mis.dir_pdf) + dr::square(p_nee)), 1.f);
+                            ? Float(0.f)
+                            : dr::select(p_nee > 0.f, power_heuristic(mis.dir_pdf, p_nee), 1.f);
                         w = dr::select(on, w_mis, 1.f);
                     }
                     dr::masked(s.emitted, hit) += s.weight * (sigma_t - sigma_s) *

@@ -776,9 +776,16 @@ public:
         Float u = sampler->next_1d(active);
         Point2f u2 = sampler->next_2d(active);
         Point3f u3(u2.x(), u2.y(), sampler->next_1d(active));
+        // The medium (by its power), a point x of it, and what x emits:
+        // sigma_a Le of that medium
+        MediumInteraction3f mx = dr::zeros<MediumInteraction3f>();
+        mx.t = 0.f;
+        mx.time = ref.time;
+        mx.wavelengths = ref.wavelengths;
         Point3f x = dr::zeros<Point3f>();
         Float pdf = 0.f;
         MediumPtr target = nullptr;
+        UnpolarizedSpectrum emitted(0.f);
         Float lo = 0.f;
         for (size_t i = 0; i < m_tracked.size(); ++i) {
             const TrackedMedium &k = m_tracked[i];
@@ -792,10 +799,15 @@ public:
                 dr::masked(x, pick) = p;
                 dr::masked(pdf, pick) = k.select * pdf_k;
                 dr::masked(target, pick) = MediumPtr(k.medium);
+                mx.p = p;
+                mx.medium = k.medium;
+                auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(mx, pick);
+                DRJIT_MARK_USED(sigma_n);
+                dr::masked(emitted, pick) = (sigma_t - sigma_s) * k.emissive->eval_emission(mx, pick);
             }
             lo = hi;
         }
-        active &= pdf > 0.f;
+        active &= pdf > 0.f && dr::any(emitted != 0.f);
         Vector3f d = x - ref.p;
         Float r2 = dr::squared_norm(d);
         d *= dr::rsqrt(r2);
@@ -810,29 +822,10 @@ public:
         ds.dist = dr::sqrt(r2);
         ds.pdf = pdf * r2;
 
-        // What x emits: sigma_a Le of its medium
-        MediumInteraction3f mx = dr::zeros<MediumInteraction3f>();
-        mx.p = x;
-        mx.t = 0.f;
-        mx.time = ref.time;
-        mx.wavelengths = ref.wavelengths;
-        UnpolarizedSpectrum emitted(0.f);
-        for (const TrackedMedium &k : m_tracked) {
-            Mask in_k = active && target == MediumPtr(k.medium);
-            if (!k.nee || dr::none_or<false>(in_k))
-                continue;
-            mx.medium = k.medium;
-            auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(mx, in_k);
-            DRJIT_MARK_USED(sigma_n);
-            dr::masked(emitted, in_k) = (sigma_t - sigma_s) * k.emissive->eval_emission(mx, in_k);
-        }
-        active &= dr::any(emitted != 0.f);
-
         // The MIS weight, and the Russian roulette on it
         auto [f, p_dir] = toward(d);
         Float w = m_emission_sampling == EmissionSampling::Nee
-                      ? Float(1.f)
-                      : dr::square(ds.pdf) / (dr::square(ds.pdf) + dr::square(p_dir));
+                      ? Float(1.f) : mis_weight(ds.pdf, p_dir);
         Float q = dr::minimum(w * (1.f / NEE_RR), 1.f);
         active &= (q >= 1.f) || (sampler->next_1d(active) < q);
         if (dr::none_or<false>(active))
@@ -1040,15 +1033,20 @@ public:
         m_trips.report();
         return tfm::format("VolumetricPathLocalMajorants[\n"
                            "  max_depth = %i,\n"
-                           "  rr_depth = %i,\n" // volpathlocal: and the five below
+                           "  rr_depth = %i,\n" // volpathlocal: and the seven below
                            "  coarse_optical_depth = %f,\n"
                            "  transmittance = %s,\n"
+                           "  emission_sampling = %s,\n"
+                           "  emission_rate = %f,\n"
                            "  max_majorant_ratio = %f,\n"
                            "  tracked media = %zu,\n"
                            "  loop bound trips = [%s]\n"
                            "]",
                            m_max_depth, m_rr_depth, m_coarse_depth, // volpathlocal
-                           m_residual ? "residual" : "ratio", m_max_ratio,
+                           m_residual ? "residual" : "ratio",
+                           m_emission_sampling == EmissionSampling::Mis ? "mis"
+                           : m_emission_sampling == EmissionSampling::Nee ? "nee" : "collisions",
+                           m_emission_rate, m_max_ratio,
                            m_tracked.size(), m_trips.list());
     }
 
