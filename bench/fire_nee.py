@@ -68,6 +68,23 @@ def scene(mi, case, mode, res, spp, sensors):
     return d
 
 
+def cases(a):
+    """The cases a.cases names (files in a.data, made by a.build's vdb2nvdb
+    where missing), and notes on those skipped"""
+    case_list, notes = [], []
+    for name in a.cases:
+        if name == "fireball":
+            case_list.append({"name": name, "file": emission.fireball_file(a.data, a.build, a.n)})
+        elif name == "fireball_self_lit":
+            case_list.append({"name": "fireball", "label": name, "self_lit": True,
+                              "file": emission.fireball_file(a.data, a.build, a.n)})
+        elif os.path.exists(emission.SHARED_USD):
+            case_list.append({"name": name, "file": emission.usd_file(a.data, a.build)})
+        else:
+            notes.append("usd_heat skipped: ../shared/data/usd_density_heat_fog.vdb not found")
+    return case_list, notes
+
+
 def child(spec):
     """One variant: the references (mode "reference") or the sweeps"""
     from child_setup import mitsuba_for
@@ -160,17 +177,7 @@ def main():
     a.build, a.data = os.path.abspath(a.build), os.path.abspath(a.data)
     started = datetime.datetime.now().astimezone()
     t_start = time.perf_counter()
-    case_list, notes = [], []
-    for name in a.cases:
-        if name == "fireball":
-            case_list.append({"name": name, "file": emission.fireball_file(a.data, a.build, a.n)})
-        elif name == "fireball_self_lit":
-            case_list.append({"name": "fireball", "label": name, "self_lit": True,
-                              "file": emission.fireball_file(a.data, a.build, a.n)})
-        elif os.path.exists(emission.SHARED_USD):
-            case_list.append({"name": name, "file": emission.usd_file(a.data, a.build)})
-        else:
-            notes.append("usd_heat skipped: ../shared/data/usd_density_heat_fog.vdb not found")
+    case_list, notes = cases(a)
     work = os.path.join(a.data, "runs")
     os.makedirs(work, exist_ok=True)
     # References (cached): keyed by the settings, the grids, the plugins

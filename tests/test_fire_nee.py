@@ -242,12 +242,14 @@ def test03_fireball_mis_equals_collisions(variants_rgb):
     assert np.abs(zb).max() < Z_MAX, zb
 
 
-def two_boxes_scene(grids, mode, size, spp, fog):
+def two_boxes_scene(grids, mode, size, spp, between):
     """Two emitting boxes of different brightness (NEE picks one by its
-    power) over the floor; with `fog`, the whole scene inside a grey
+    power) over the floor; `between` "fog": the whole scene inside a grey
     homogeneous fog (emission reached through another medium: NEE's shadow
     rays cross it, and a shadow ray that does not end in its target's
-    medium counts nothing)"""
+    medium counts nothing); "glass": a glass slab between the boxes and the
+    floor (emission reached through glass: NEE's shadow rays stop there,
+    and the flights after it, a specular chain, keep all they collect)"""
     scene = box_scene(grids, mode, size, spp)
     scene["integrator"]["max_depth"] = 8
     place2 = T4().translate([1.3, 0.1, 0.0])
@@ -256,7 +258,10 @@ def two_boxes_scene(grids, mode, size, spp, fog):
     second["emission"] = dict(second["emission"], to_world=place2)
     scene["box2"] = {"type": "cube", "bsdf": {"type": "null"}, "interior": second,
                      "to_world": T4().translate([1.8, 0.6, 0.5]).scale(0.5)}
-    if fog:
+    if between == "glass":
+        scene["glass"] = {"type": "cube", "bsdf": {"type": "dielectric", "int_ior": 1.5},
+                          "to_world": T4().translate([0.9, 0.05, 0.5]).scale([2.0, 0.02, 2.0])}
+    if between == "fog":
         scene["fog"] = {"type": "homogeneous", "sigma_t": 0.4, "albedo": 0.7}
         ref = {"type": "ref", "id": "fog"}
         scene["fog_box"] = {"type": "cube", "bsdf": {"type": "null"}, "interior": ref,
@@ -266,21 +271,24 @@ def two_boxes_scene(grids, mode, size, spp, fog):
     return scene
 
 
-@pytest.mark.parametrize("fog", [False, True])
-def test05_two_media_and_fog_mis_equals_collisions(variant_llvm_ad_rgb, box_grids, fog):
+@pytest.mark.parametrize("between", ["nothing", "fog", "glass"])
+def test05_two_media_through_fog_and_glass_mis_equals_collisions(variant_llvm_ad_rgb, box_grids,
+                                                                  between):
     size, spp, k = 12, 32, 16
-    ref = renders(mi.load_dict(two_boxes_scene(box_grids, "collisions", size, 4 * spp, fog)),
+    ref = renders(mi.load_dict(two_boxes_scene(box_grids, "collisions", size, 4 * spp, between)),
                   k, 4 * spp, seed0=3)
-    new = renders(mi.load_dict(two_boxes_scene(box_grids, "mis", size, spp, fog)), k, spp,
+    new = renders(mi.load_dict(two_boxes_scene(box_grids, "mis", size, spp, between)), k, spp,
                   seed0=4)
     # both boxes' floors and the whole image: z-tests over the renders
     for name, sl in (("left", np.s_[:, :, : size // 2]), ("right", np.s_[:, :, size // 2:]),
                      ("image", np.s_[:])):
         a, b = new[sl].reshape(k, -1).mean(1), ref[sl].reshape(k, -1).mean(1)
         z = (a.mean() - b.mean()) / np.sqrt(a.var(ddof=1) / k + b.var(ddof=1) / k)
-        assert abs(z) < Z_MAX, (fog, name, z, a.mean(), b.mean())
+        assert abs(z) < Z_MAX, (between, name, z, a.mean(), b.mean())
     # and NEE does its job: lower variance per pixel at a quarter of the spp
-    assert new.var(0, ddof=1).mean() < ref.var(0, ddof=1).mean() * 4
+    # (not through glass: its shadow rays stop there)
+    if between != "glass":
+        assert new.var(0, ddof=1).mean() < ref.var(0, ddof=1).mean() * 4
 
 
 # ---------------------------------------------------------------------------
@@ -312,3 +320,49 @@ def test04_zero_power_turns_nee_off_and_says_so(variant_scalar_rgb, box_grids):
     assert np.all(img == 0.0)
     msgs = [t for t in seen if "next-event estimation is off" in t]
     assert len(msgs) == 1 and "zero power" in msgs[0] and "c2.nvdb" in msgs[0], seen
+
+
+def test06_bad_emission_values_say_so(variant_scalar_rgb, box_grids, tmp_path):
+    """NaN and negative emission follow the emission grid's invalid_values;
+    a temperature under the cutoff everywhere is zero power. Each names the
+    file, and none is silently wrong."""
+    box = ("--min", 0, 0, 0, "--max", 15, 15, 15, "--value", LE)
+    nan = make_stab(tmp_path, "nan_le", *box, "--set", 3, 4, 5, "nan", dense=False)[0]
+    neg = make_stab(tmp_path, "neg_le", *box, "--set", 3, 4, 5, -2.0, dense=False)[0]
+    zero = make_stab(tmp_path, "zero_le", *box, "--set", 3, 4, 5, 0.0, dense=False)[0]
+
+    def scene(path, **emission):
+        d = box_scene({**box_grids, LE: path}, "mis", 8, 4)
+        d["box"]["interior"]["emission"].update(emission)
+        return mi.load_dict(d)
+
+    # NaN under "error" (the default): refused, naming the file and the voxel
+    with pytest.raises(RuntimeError, match=r"(?s)nan_le\.nvdb.*1 NaN.*\(3, 4, 5\)"):
+        scene(nan)
+    # ... under "clamp": 0 there, with a warning; the table and the render are
+    # those of the grid holding 0 there (same seed: the same image)
+    loaded, seen = warnings_of(lambda: scene(nan, invalid_values="clamp"))
+    assert any("nan_le.nvdb" in t for t in seen), seen
+    clamped, seen = warnings_of(lambda: np.array(mi.render(loaded, seed=3)))
+    assert not any("next-event estimation is off" in t for t in seen), seen
+    assert np.isfinite(clamped).all() and clamped.max() > 0.0
+    assert np.array_equal(clamped, np.array(mi.render(scene(zero), seed=3)))
+    # Negative under "error": loads with a warning that names the file, and
+    # renders what the grid holds (the table weighs that voxel 0, the
+    # collision estimator and NEE's other points carry it); under "clamp":
+    # the grid with 0 there, image for image
+    loaded, seen = warnings_of(lambda: scene(neg))
+    assert any("neg_le.nvdb" in t and "negative" in t for t in seen), seen
+    assert np.isfinite(np.array(mi.render(loaded, seed=3))).all()
+    assert np.array_equal(np.array(mi.render(scene(neg, invalid_values="clamp"), seed=3)),
+                          np.array(mi.render(scene(zero), seed=3)))
+    # A temperature under temperature_cutoff everywhere: zero power
+    d = box_scene(box_grids, "mis", 8, 4)
+    medium = d["box"]["interior"]
+    medium["temperature"] = medium.pop("emission")
+    medium["temperature_scale"] = 1000.0 / LE  # (every voxel at 1000 K: it would glow)
+    medium["temperature_cutoff"] = 2000.0
+    img, seen = warnings_of(lambda: np.array(mi.render(mi.load_dict(d), spp=4)))
+    off = [t for t in seen if "next-event estimation is off" in t]
+    assert len(off) == 1 and "zero power" in off[0] and "c1.nvdb" in off[0], seen
+    assert np.all(img == 0.0)
