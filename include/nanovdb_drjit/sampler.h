@@ -223,6 +223,12 @@ public:
     /// coordinate `ijk`, and where one does (else 0 and false)
     std::pair<UInt32, Mask> leaf_at(const Coord<UInt32> &ijk, const Mask &active) const;
 
+    /// PNanoVDB's value address (in words) and level of the absolute
+    /// coordinate `ijk`: a leaf's value, a tile's (nanovdb_loader/
+    /// active_tiles.h names tiles by it) or the background's
+    AddressAndLevel<UInt32> value_address_at(const Coord<UInt32> &ijk,
+                                             const Mask &active) const;
+
     /// Leaf `leaf`'s origin (absolute, a multiple of 8 per axis)
     Coord<UInt32> leaf_origin(const UInt32 &leaf, const Mask &active) const;
 

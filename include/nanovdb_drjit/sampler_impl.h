@@ -254,16 +254,22 @@ template <typename Float>
 std::pair<typename GridSampler<Float>::UInt32, typename GridSampler<Float>::Mask>
 GridSampler<Float>::leaf_at(const Coord<UInt32> &ijk, const Mask &active) const {
     const uint32_t leaf_words = layout::grid_type_constants(grid_type)->leaf_size / 4;
-    AddressAndLevel<UInt32> al = layout::visit_value_type(grid_type, [&](auto type) {
+    AddressAndLevel<UInt32> al = value_address_at(ijk, active);
+    // Leaves are one array of fixed stride: the value's address is in its leaf
+    const Mask in_leaf = active && al.level == LEVEL_LEAF;
+    const UInt32 leaf = (al.address - majorants.leaf_begin) / leaf_words;
+    return { dr::select(in_leaf, leaf, 0u), in_leaf };
+}
+
+template <typename Float>
+AddressAndLevel<typename GridSampler<Float>::UInt32>
+GridSampler<Float>::value_address_at(const Coord<UInt32> &ijk, const Mask &active) const {
+    return layout::visit_value_type(grid_type, [&](auto type) {
         constexpr uint32_t T = decltype(type)::value;
         return reader.apply(words(), [&](const auto &buf, const auto &root) {
             return value_address_and_level<T>(buf, root, ijk, active);
         });
     });
-    // Leaves are one array of fixed stride: the value's address is in its leaf
-    const Mask in_leaf = active && al.level == LEVEL_LEAF;
-    const UInt32 leaf = (al.address - majorants.leaf_begin) / leaf_words;
-    return { dr::select(in_leaf, leaf, 0u), in_leaf };
 }
 
 template <typename Float>

@@ -28,6 +28,7 @@
 #include <mitsuba/render/srgb.h>
 
 #include <nanovdb_drjit/sampler.h>
+#include <nanovdb_loader/active_tiles.h>
 #include <nanovdb_loader/build.h>
 #include <nanovdb_loader/load.h>
 #include <nanovdb_loader/vdb_import.h>
@@ -91,6 +92,7 @@ template <typename Float, typename Spectrum> struct GridLoad {
     uint32_t grid_index = 0xffffffffu; ///< in the file's grids (memory sources: none)
     int32_t cell_base[3] = { 0, 0, 0 }; ///< the walk's base (multiple of 4096)
     IndexUpdates<Float> index;         ///< an index grid's (differentiable=true)
+    std::vector<nanovdb_loader::ActiveTile> tiles; ///< the grid's active tiles
 
     /// A .vdb file's grid `selector`, converted in memory as vdb2nvdb
     /// converts it: only that grid is read, and no file is written
@@ -275,6 +277,10 @@ private:
                                                       options);
         for (const std::string &warning : g.warnings)
             Log(Warn, "%s", warning);
+        // Its active tiles (few, usually none), for an emission sampler
+        // (nanovdb_mitsuba/grid_units.h); read while the view is valid
+        if (!six)
+            tiles = loader::active_tiles(g.grid);
         if (g.grid.is_index_grid()) {
             // The index grid's tree is smaller than the grid it was made
             // from, or than the file's grid with its blind data: a block of

@@ -315,6 +315,7 @@ public:
                   "two 3-channel volumes, or leave differentiable out", m_filename);
         m_grid_name = m_load.facts.name;
         m_leaf_count = summary.node_count[0];
+        set_tiles(std::move(m_load.tiles));
         // Stochastic filters' offsets in eval(): a hash of the position and
         // of this seed, so that volumes of other files or grids (a medium's
         // density and albedo) are dithered independently, and a scene
@@ -658,7 +659,25 @@ public:
         return world_from_cell(leaf_cell(leaf, active) + 2.f * (b + Vector3f(u)));
     }
 
-    std::tuple<UInt32, UInt32, Mask> locate_leaf(const Point3f &p, Mask active) const override {
+    uint32_t unit_tile_count() const override {
+        return m_sampler.leaves_addressable() && !m_second ? m_tile_count : 0;
+    }
+
+    std::pair<Point3f, Float> tile_point(const UInt32 &tile, const Point3f &u,
+                                         Mask active) const override {
+        // (the table: the tiles' value words, then per tile origin x, y, z, log2dim)
+        const UInt32 at = m_tile_count + 4u * tile;
+        const UInt32 log2dim = read_tile_word(at + 3u, active);
+        const Float dim = dr::reinterpret_array<Float>((log2dim + 127u) << 23); // (2^log2dim)
+        Vector3f c;
+        for (int k = 0; k < 3; ++k) // (cell space, as leaf_cell)
+            c[k] = Float(dr::reinterpret_array<Int32>(
+                read_tile_word(at + uint32_t(k), active) -
+                dr::reinterpret_array<UInt32>(m_sampler.majorants.base[k])));
+        return { world_from_cell(c + dim * Vector3f(u)), dim * dim * dim };
+    }
+
+    std::tuple<UInt32, UInt32, Mask> locate_unit(const Point3f &p, Mask active) const override {
         Vector3f c;
         for (int i = 0; i < 3; ++i) {
             c[i] = m_cell_from_world(i, 3);
@@ -671,12 +690,36 @@ public:
         for (int k = 0; k < 3; ++k) // (int32 wrap-around, as the index space)
             ijk[k] = dr::reinterpret_array<Int32>(dr::reinterpret_array<UInt32>(cell[k]) +
                                                   dr::reinterpret_array<UInt32>(m_sampler.majorants.base[k]));
-        auto [leaf, found] = m_sampler.leaf_at(ijk, active);
+        const uint32_t leaf_words =
+            nanovdb_drjit::layout::grid_type_constants(m_sampler.grid_type)->leaf_size / 4;
+        nanovdb_drjit::AddressAndLevel<UInt32> al = m_sampler.value_address_at(ijk, active);
+        Mask found = active && al.level == nanovdb_drjit::LEVEL_LEAF;
+        UInt32 unit = dr::select(found, (al.address - m_sampler.majorants.leaf_begin) / leaf_words,
+                                 0u);
         UInt32 l[3];
         for (int k = 0; k < 3; ++k)
             l[k] = dr::reinterpret_array<UInt32>(ijk[k]) & 7u;
-        UInt32 block = ((l[0] >> 1) << 4) | ((l[1] >> 1) << 2) | (l[2] >> 1);
-        return { leaf, block, found };
+        UInt32 block = dr::select(found, ((l[0] >> 1) << 4) | ((l[1] >> 1) << 2) | (l[2] >> 1),
+                                  0u);
+        if (m_tile_count > 0) {
+            // A tile: its value word among the sorted ones (binary search,
+            // its steps unrolled for the host's count)
+            const Mask tile = active && al.level != nanovdb_drjit::LEVEL_LEAF &&
+                              al.level != nanovdb_drjit::LEVEL_BACKGROUND;
+            UInt32 t = 0;
+            uint32_t step = 1;
+            while (step * 2 <= m_tile_count)
+                step *= 2;
+            for (; step > 0; step /= 2) {
+                const UInt32 next = t + step;
+                const Mask ok = tile && next < m_tile_count;
+                dr::masked(t, ok && read_tile_word(next, ok) <= al.address) = next;
+            }
+            const Mask hit = tile && read_tile_word(t, tile) == al.address;
+            dr::masked(unit, hit) = m_leaf_count + t;
+            found |= hit;
+        }
+        return { unit, block, found };
     }
 
     ScalarFloat voxel_volume() const override { return m_voxel_volume; }
@@ -684,6 +727,29 @@ public:
     MI_DECLARE_CLASS(NanoVDBVolume)
 
 private:
+    /// The active tiles' table (tile_point, locate_unit), on the backend
+    void set_tiles(std::vector<nanovdb_loader::ActiveTile> tiles) {
+        m_tile_count = uint32_t(tiles.size());
+        std::vector<uint32_t> t(5 * tiles.size());
+        for (size_t i = 0; i < tiles.size(); ++i) {
+            t[i] = tiles[i].value_word;
+            for (int k = 0; k < 3; ++k)
+                t[tiles.size() + 4 * i + k] = uint32_t(tiles[i].origin[k]);
+            t[tiles.size() + 4 * i + 3] = tiles[i].log2dim;
+        }
+        if constexpr (dr::is_jit_v<Float>)
+            m_tile_table = t.empty() ? UInt32() : dr::load<UInt32>(t.data(), t.size());
+        else
+            m_tile_table = std::move(t);
+    }
+
+    UInt32 read_tile_word(const UInt32 &i, const Mask &active) const {
+        if constexpr (dr::is_jit_v<Float>)
+            return dr::gather<UInt32>(m_tile_table, i, active);
+        else
+            return active ? m_tile_table[i] : 0u;
+    }
+
     /// Leaf `leaf`'s origin in cell space
     Vector3f leaf_cell(const UInt32 &leaf, Mask active) const {
         const auto o = m_sampler.leaf_origin(leaf, active);
@@ -990,6 +1056,9 @@ private:
     int32_t m_index_min_box[3] = {}, m_resolution_box[3] = {};
     ScalarFloat m_background_host = 0.f;
     uint32_t m_leaf_count = 0;         // the grid's leaves (GridUnits)
+    uint32_t m_tile_count = 0;         // its active tiles (GridUnits), and their table:
+    /// sorted value words, then per tile origin x, y, z, log2dim (tile_point)
+    std::conditional_t<dr::is_jit_v<Float>, UInt32, std::vector<uint32_t>> m_tile_table;
     ScalarFloat m_voxel_volume = 0.f;  // one voxel's world volume (GridUnits)
     dr::Matrix<double, 4> m_index_from_world_host; // use_grid_transform, in double
     Filter m_filter = Filter::Trilinear;
