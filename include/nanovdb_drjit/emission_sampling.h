@@ -25,6 +25,27 @@ template <typename UInt32> struct EmissionPick {
     Float rest;   ///< what is left of the random number, uniform in [0, 1)
 };
 
+/**
+ * The last i in [0, n) with key(i, mask) <= x (0 where none is), for keys
+ * that do not decrease with i: a branchless binary search whose steps are
+ * unrolled for the host's n. (The emission table's CDF; a grid's sorted
+ * tile addresses, nanovdbvolume's locate_unit)
+ */
+template <typename UInt32, typename Key, typename T>
+DRJIT_INLINE UInt32 last_at_most(uint32_t n, Key &&key, const T &x,
+                                 const dr::mask_t<UInt32> &active) {
+    UInt32 u = 0;
+    uint32_t step = 1;
+    while (step * 2 <= n)
+        step *= 2;
+    for (; step > 0; step /= 2) {
+        const UInt32 c = u + step;
+        const dr::mask_t<UInt32> ok = active && c < n;
+        dr::masked(u, ok && key(c, ok) <= x) = c;
+    }
+    return u;
+}
+
 namespace detail {
 
 /// The sum of the eight 4-bit fields of a word
@@ -69,15 +90,9 @@ EmissionPick<UInt32> sample_emission(const Table &table, uint32_t units, uint32_
     // The unit: the last u in [0, units) with cdf[u] <= x (branchless
     // binary search; units of probability 0 are never chosen, as their
     // successor has the same cdf)
-    UInt32 u = 0;
-    uint32_t step = 1;
-    while (step * 2 <= units)
-        step *= 2;
-    for (; step > 0; step /= 2) {
-        const UInt32 c = u + step;
-        const Mask ok = active && c < units;
-        dr::masked(u, ok && read_float(table, c, ok) <= x) = c;
-    }
+    const UInt32 u = last_at_most<UInt32>(
+        units, [&](const UInt32 &c, const Mask &ok) { return read_float(table, c, ok); }, x,
+        active);
     const Float lo = read_float(table, u, active),
                 hi = read_float(table, UInt32(u + 1u), active);
     Float rest = dr::minimum((x - lo) / (hi - lo), dr::OneMinusEpsilon<Float>);

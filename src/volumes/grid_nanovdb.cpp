@@ -5,6 +5,7 @@
 #include <mitsuba/render/srgb.h>
 #include <mitsuba/render/volume.h>
 
+#include <nanovdb_drjit/emission_sampling.h>
 #include <nanovdb_drjit/sampler.h>
 #include <nanovdb_loader/load.h>
 #include <nanovdb_loader/majorants.h>
@@ -706,15 +707,10 @@ public:
             // its steps unrolled for the host's count)
             const Mask tile = active && al.level != nanovdb_drjit::LEVEL_LEAF &&
                               al.level != nanovdb_drjit::LEVEL_BACKGROUND;
-            UInt32 t = 0;
-            uint32_t step = 1;
-            while (step * 2 <= m_tile_count)
-                step *= 2;
-            for (; step > 0; step /= 2) {
-                const UInt32 next = t + step;
-                const Mask ok = tile && next < m_tile_count;
-                dr::masked(t, ok && read_tile_word(next, ok) <= al.address) = next;
-            }
+            const UInt32 t = nanovdb_drjit::last_at_most<UInt32>(
+                m_tile_count,
+                [&](const UInt32 &i, const Mask &ok) { return read_tile_word(i, ok); },
+                al.address, tile);
             const Mask hit = tile && read_tile_word(t, tile) == al.address;
             dr::masked(unit, hit) = m_leaf_count + t;
             found |= hit;
