@@ -84,6 +84,7 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 import cases  # noqa: E402
 import harness  # noqa: E402
+import report_common  # noqa: E402
 
 SHARED_USD = os.path.join(ROOT, "..", "shared", "data", "usd_density_heat_fog.vdb")
 CASES = ["fireball", "usd_heat"]
@@ -760,10 +761,7 @@ def write_report(a, case_list, refs, measured, rows, errors, notes, started, ela
     for n, d in refs.items():
         L.append(f"| {n} | {a.ref_spp} spp, {a.ref_variant} | {d['off'][2]:.1f} | "
                  f"{d['on'][2]:.1f} |")
-    if notes:
-        L += ["", "Notes:", ""] + [f"- {n}" for n in notes]
-    with open(a.out, "w") as f:
-        f.write("\n".join(L) + "\n")
+    report_common.write_markdown(a.out, L, notes)
 
 
 def plot_error_time(errors, path):
@@ -790,9 +788,7 @@ def plot_error_time(errors, path):
         ax.set_ylabel("relative RMSE vs reference")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    report_common.save_figure(fig, *os.path.split(path), 80)
 
 
 if __name__ == "__main__":

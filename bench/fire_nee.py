@@ -44,6 +44,7 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 import emission  # noqa: E402  (the scenes, files and region masks)
 import harness  # noqa: E402
+import report_common  # noqa: E402
 
 MODES = ["collisions", "mis", "nee"]
 # bench/emission.py's cases, and the fireball without floor and sky: smoke
@@ -303,10 +304,7 @@ def write_report(a, case_list, errors, measured, notes, started, elapsed):
             for r in emission.REGIONS]
         L.append(f"| {e['case']} | {e['variant']} | {e['mode']} | {e['spp']} | "
                  f"{e['time_s']:.3f} | " + " | ".join(cells) + " |")
-    if notes:
-        L += ["", "Notes:", ""] + [f"- {n}" for n in notes]
-    with open(a.out, "w") as f:
-        f.write("\n".join(L) + "\n")
+    report_common.write_markdown(a.out, L, notes)
 
 
 def plot(errors, path):
@@ -332,9 +330,7 @@ def plot(errors, path):
             ax.set_xlabel("time [s]", fontsize=7)
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    report_common.save_figure(fig, *os.path.split(path), 80)
 
 
 if __name__ == "__main__":

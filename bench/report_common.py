@@ -95,3 +95,13 @@ def save_figure(fig, out, name, dpi, rect=None):
     fig.savefig(os.path.join(out, name), dpi=dpi)
     plt.close(fig)
     return name
+
+
+def write_markdown(path, lines, notes=()):
+    """Writes a report's lines to `path`, with its notes (if any) as a list
+    at the end."""
+    lines = list(lines)
+    if notes:
+        lines += ["", "Notes:", ""] + [f"- {n}" for n in notes]
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")

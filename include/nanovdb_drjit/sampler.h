@@ -219,15 +219,15 @@ public:
     /// leaves (every type but FpN)
     bool leaves_addressable() const;
 
-    /// The leaf (its place in the leaf array) that holds the absolute
-    /// coordinate `ijk`, and where one does (else 0 and false)
-    std::pair<UInt32, Mask> leaf_at(const Coord<UInt32> &ijk, const Mask &active) const;
-
     /// PNanoVDB's value address (in words) and level of the absolute
     /// coordinate `ijk`: a leaf's value, a tile's (nanovdb_loader/
     /// active_tiles.h names tiles by it) or the background's
     AddressAndLevel<UInt32> value_address_at(const Coord<UInt32> &ijk,
                                              const Mask &active) const;
+
+    /// The leaf (its place in the leaf array) whose value `al` addresses,
+    /// and where it is one (else 0 and false)
+    std::pair<UInt32, Mask> leaf_of(const AddressAndLevel<UInt32> &al, const Mask &active) const;
 
     /// Leaf `leaf`'s origin (absolute, a multiple of 8 per axis)
     Coord<UInt32> leaf_origin(const UInt32 &leaf, const Mask &active) const;

@@ -252,9 +252,8 @@ template <typename Float> bool GridSampler<Float>::leaves_addressable() const {
 
 template <typename Float>
 std::pair<typename GridSampler<Float>::UInt32, typename GridSampler<Float>::Mask>
-GridSampler<Float>::leaf_at(const Coord<UInt32> &ijk, const Mask &active) const {
+GridSampler<Float>::leaf_of(const AddressAndLevel<UInt32> &al, const Mask &active) const {
     const uint32_t leaf_words = layout::grid_type_constants(grid_type)->leaf_size / 4;
-    AddressAndLevel<UInt32> al = value_address_at(ijk, active);
     // Leaves are one array of fixed stride: the value's address is in its leaf
     const Mask in_leaf = active && al.level == LEVEL_LEAF;
     const UInt32 leaf = (al.address - majorants.leaf_begin) / leaf_words;

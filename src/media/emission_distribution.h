@@ -7,18 +7,19 @@
     at every voxel of the grid's leaves, in one vectorized call on the
     backend; the host builds the table from those weights
     (nanovdb_loader/emission_table.h: 2^3 blocks per leaf at 4 bits, a CDF
-    over the leaves); the table goes to the backend, where
+    over the leaves and tiles); the table goes to the backend, where
     nanovdb_drjit/emission_sampling.h samples it. The emission volume says
-    where its leaves are (nanovdb_mitsuba/grid_units.h).
+    where its leaves and tiles are (nanovdb_mitsuba/grid_units.h).
 
     sample() returns a world point and its pdf per unit world volume;
     pdf() recomputes it for any point (MIS): the same table words and the
-    same arithmetic, so the two agree exactly for a sampled point. Points
-    in no leaf, or in a block of weight 0, have pdf 0: the filter's reach
-    (trilinear and stochastic filters read neighbours) can make them emit,
-    and the collision estimator, weighted 1 there by MIS, covers them.
-    Active tiles of the emission grid are not sampled yet (the table has
-    room for them; the volume does not list them): MIS covers them too.
+    same arithmetic, so the two agree exactly for a sampled point. Active
+    tiles of the emission grid are units too (one weight each, at the
+    tile's centre; a point uniform in the tile). Points in no leaf or
+    active tile, or in a block of weight 0, have pdf 0: the filter's reach
+    (trilinear and stochastic filters read neighbours) or an inactive tile
+    can make them emit, and the collision estimator, weighted 1 there by
+    MIS, covers them.
 */
 
 #pragma once
@@ -137,7 +138,7 @@ public:
     }
 
     /// The pdf per unit world volume that sample() gives the point p (0
-    /// where no leaf, or a block of weight 0, holds it)
+    /// where no leaf or active tile, or a block of weight 0, holds it)
     Float pdf(const Point3f &p, Mask active) const {
         auto [unit, block, found] = m_units->locate_unit(p, active);
         Float prob = nanovdb_drjit::emission_probability<UInt32>(words(), m_unit_count, m_leaves,

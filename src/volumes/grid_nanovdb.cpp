@@ -691,20 +691,15 @@ public:
         for (int k = 0; k < 3; ++k) // (int32 wrap-around, as the index space)
             ijk[k] = dr::reinterpret_array<Int32>(dr::reinterpret_array<UInt32>(cell[k]) +
                                                   dr::reinterpret_array<UInt32>(m_sampler.majorants.base[k]));
-        const uint32_t leaf_words =
-            nanovdb_drjit::layout::grid_type_constants(m_sampler.grid_type)->leaf_size / 4;
         nanovdb_drjit::AddressAndLevel<UInt32> al = m_sampler.value_address_at(ijk, active);
-        Mask found = active && al.level == nanovdb_drjit::LEVEL_LEAF;
-        UInt32 unit = dr::select(found, (al.address - m_sampler.majorants.leaf_begin) / leaf_words,
-                                 0u);
+        auto [unit, found] = m_sampler.leaf_of(al, active);
         UInt32 l[3];
         for (int k = 0; k < 3; ++k)
             l[k] = dr::reinterpret_array<UInt32>(ijk[k]) & 7u;
         UInt32 block = dr::select(found, ((l[0] >> 1) << 4) | ((l[1] >> 1) << 2) | (l[2] >> 1),
                                   0u);
         if (m_tile_count > 0) {
-            // A tile: its value word among the sorted ones (binary search,
-            // its steps unrolled for the host's count)
+            // A tile: its value word among the sorted ones
             const Mask tile = active && al.level != nanovdb_drjit::LEVEL_LEAF &&
                               al.level != nanovdb_drjit::LEVEL_BACKGROUND;
             const UInt32 t = nanovdb_drjit::last_at_most<UInt32>(
