@@ -2,6 +2,7 @@
 
     import mitsuba as mi
     import nanovdb_mitsuba          # Mitsuba now finds nanovdbvolume and volpathlocal
+                                    # (and, in *_ad_* variants, prbvolpathlocal)
     mi.set_variant("llvm_ad_rgb")
     vol = mi.load_dict({"type": "nanovdbvolume", "filename": "scenes/cloud.nvdb"})
 
@@ -53,7 +54,33 @@ def setup(mi=None):
     resolver = mi.file_resolver()
     if len(resolver) == 0 or str(resolver[0]) != d:
         resolver.prepend(d)
+    _register_python_integrators(mi)
     return d
+
+
+_CALLBACK_ADDED = False
+
+
+def _register_python_integrators(mi):
+    """prbvolpathlocal (prbvolpathlocal.py), a Python integrator as
+    Mitsuba's prbvolpath is: registered in the current variant when it is
+    an *_ad_* one, and again after every mi.set_variant (its module
+    reloaded, as Mitsuba reloads its own, so that its class derives from
+    that variant's types)"""
+    global _CALLBACK_ADDED
+
+    def register(*_):
+        variant = mi.variant()
+        if not variant or "_ad_" not in variant or "polarized" in variant:
+            return
+        import importlib
+        from . import prbvolpathlocal
+        importlib.reload(prbvolpathlocal).register()
+
+    register()
+    if not _CALLBACK_ADDED:
+        mi.detail.add_variant_callback(register)
+        _CALLBACK_ADDED = True
 
 
 def vdb2nvdb():

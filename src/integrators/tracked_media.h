@@ -61,40 +61,51 @@ template <typename Float, typename Spectrum> struct TrackedMedia {
             add(emitter->medium());
         std::vector<TrackedMedium> tracked;
         for (const Medium *m : media) {
-            FindParameters p;
-            const_cast<Medium *>(m)->traverse(&p);
-            const Majorants *v = p.sigma_t ? dynamic_cast<const Majorants *>(p.sigma_t) : nullptr;
-            const Volume *volume = p.sigma_t ? dynamic_cast<const Volume *>(p.sigma_t) : nullptr;
-            // (scale 0: nothing to track, and no collision either way)
-            if (!v || !volume || !p.has_scale || !(p.scale > 0.f))
-                continue;
-            // An emissive medium is always tracked, where its emission is
-            // added; its majorant is scale x max() by construction. (Not
-            // tracked, e.g. its sigma_t not a nanovdbvolume: the medium
-            // warns that its emission is left out)
-            if (const Emissive *e = dynamic_cast<const Emissive *>(m)) {
-                e->set_emission_rendered();
-                tracked.push_back(medium(m, v, p.scale, e));
-                continue;
-            }
-            // (the check evaluates a kernel: not while a frozen function records)
-            if (!recording_frozen_function<Float>() &&
-                !majorant_is_scale_times_max(m, p.scale * volume->max())) {
-                Log(Debug, "volpathlocal: a medium's majorant is not scale x max(): "
-                           "tracked as volpath does");
-                continue;
-            }
-            if (v->local_majorant_ratio() > max_ratio) {
-                Log(Debug, "volpathlocal: local majorants average %.2f of the global one "
-                           "(above max_majorant_ratio = %.2f): tracked as volpath does",
-                    v->local_majorant_ratio(), max_ratio);
-                continue;
-            }
-            tracked.push_back(medium(m, v, p.scale, nullptr));
+            TrackedMedium k;
+            if (track(m, max_ratio, k))
+                tracked.push_back(k);
         }
         Log(Debug, "volpathlocal: %zu of %zu media tracked through local majorants",
             tracked.size(), media.size());
         return tracked;
+    }
+
+    /**
+     * Whether medium m is tracked through its volume's local majorants
+     * (find()'s rule), and then k: what tracking needs of it
+     */
+    static bool track(const Medium *m, ScalarFloat max_ratio, TrackedMedium &k) {
+        FindParameters p;
+        const_cast<Medium *>(m)->traverse(&p);
+        const Majorants *v = p.sigma_t ? dynamic_cast<const Majorants *>(p.sigma_t) : nullptr;
+        const Volume *volume = p.sigma_t ? dynamic_cast<const Volume *>(p.sigma_t) : nullptr;
+        // (scale 0: nothing to track, and no collision either way)
+        if (!v || !volume || !p.has_scale || !(p.scale > 0.f))
+            return false;
+        // An emissive medium is always tracked, where its emission is
+        // added; its majorant is scale x max() by construction. (Not
+        // tracked, e.g. its sigma_t not a nanovdbvolume: the medium
+        // warns that its emission is left out)
+        if (const Emissive *e = dynamic_cast<const Emissive *>(m)) {
+            e->set_emission_rendered();
+            k = medium(m, v, p.scale, e);
+            return true;
+        }
+        // (the check evaluates a kernel: not while a frozen function records)
+        if (!recording_frozen_function<Float>() &&
+            !majorant_is_scale_times_max(m, p.scale * volume->max())) {
+            Log(Debug, "volpathlocal: a medium's majorant is not scale x max(): "
+                       "tracked as volpath does");
+            return false;
+        }
+        if (v->local_majorant_ratio() > max_ratio) {
+            Log(Debug, "volpathlocal: local majorants average %.2f of the global one "
+                       "(above max_majorant_ratio = %.2f): tracked as volpath does",
+                v->local_majorant_ratio(), max_ratio);
+            return false;
+        }
+        k = medium(m, v, p.scale, nullptr);
+        return true;
     }
 
 private:

@@ -199,6 +199,15 @@ template <typename Float, typename Spectrum> struct Tracking {
     static Flight begin_flight(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
                                const Float &maxt, Sampler *sampler, const Mask &active,
                                bool residual, const Float *extra = nullptr) {
+        return begin_flight(k, wr, mint, maxt, -dr::log(1.f - sampler->next_1d(active)), active,
+                            residual, extra);
+    }
+
+    /// The same with a given tau (the optical depth to the first tentative
+    /// collision: walk_bridge.cpp's, drawn by its caller)
+    static Flight begin_flight(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
+                               const Float &maxt, const Float &tau, const Mask &active,
+                               bool residual, const Float *extra = nullptr) {
         Flight f;
         f.alive = active;
         f.searching = false;
@@ -206,7 +215,7 @@ template <typename Float, typename Spectrum> struct Tracking {
         f.t = mint;
         f.control_depth = 0.f;
         f.extra = extra ? *extra : Float(0.f);
-        f.tau = -dr::log(1.f - sampler->next_1d(active));
+        f.tau = tau;
         f.steps = f.collisions = f.tripped = 0;
         // Walk steps: every step crosses a cell face, and cells are at least
         // 8 voxels wide, so a segment crosses at most sum_a |d_a| len / 8 + 3

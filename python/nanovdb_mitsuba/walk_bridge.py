@@ -1,0 +1,124 @@
+"""The walk of a tracked medium for integrators written in Python
+(prbvolpathlocal.py): volpathlocal.so's C functions
+(src/integrators/walk_bridge.cpp), which take and return Dr.Jit variables by
+index and so record into the caller's kernels, its symbolic loops included.
+
+    bridge = WalkBridge.for_variant()          # the current variant's
+    bridge.tracked(medium)                     # 0, 1 or 2 (tracked, emits)
+    t, majorant = bridge.next_collision(medium, ray, tmax, u, active)
+    le = bridge.eval_emission(medium, mei, active)
+"""
+import ctypes
+import os
+
+import drjit as dr
+import mitsuba as mi
+
+from . import plugin_root
+
+_LIB = None
+
+
+def _library():
+    global _LIB
+    if _LIB is None:
+        path = os.path.join(plugin_root(), "plugins", "volpathlocal.so")
+        if not os.path.exists(path):
+            raise RuntimeError(f"nanovdb_mitsuba: {path} not found (the walk's C functions)")
+        _LIB = ctypes.CDLL(path)
+    return _LIB
+
+
+def medium_index(medium):
+    """A medium's registry index (what a MediumPtr holds)"""
+    return int(dr.reinterpret_array(mi.UInt32, mi.MediumPtr(medium))[0])
+
+
+class WalkBridge:
+    """The C functions of one variant's backend"""
+
+    _cache = {}
+
+    @classmethod
+    def for_variant(cls):
+        variant = mi.variant()
+        if variant not in cls._cache:
+            cls._cache[variant] = cls(variant)
+        return cls._cache[variant]
+
+    def __init__(self, variant):
+        if not ("_ad_" in variant and variant.split("_")[0] in ("llvm", "cuda")):
+            raise RuntimeError(f"nanovdb_mitsuba: the walk bridge needs an llvm_ad_* or "
+                               f"cuda_ad_* variant, not {variant}")
+        lib = _library()
+        backend = variant.split("_")[0]
+        self.variant = variant.encode()
+        self._tracked = getattr(lib, f"nvdb_walk_tracked_{backend}")
+        self._tracked.argtypes = [ctypes.c_char_p, ctypes.c_uint32, ctypes.c_float,
+                                  ctypes.c_char_p, ctypes.c_size_t]
+        self._next = getattr(lib, f"nvdb_walk_next_collision_{backend}")
+        self._next.argtypes = [ctypes.c_char_p, ctypes.c_uint32, ctypes.c_float,
+                               ctypes.POINTER(ctypes.c_uint64), ctypes.POINTER(ctypes.c_uint64),
+                               ctypes.c_char_p, ctypes.c_size_t]
+        self._emission = getattr(lib, f"nvdb_walk_eval_emission_{backend}")
+        self._emission.argtypes = [ctypes.c_char_p, ctypes.c_uint32,
+                                   ctypes.POINTER(ctypes.c_uint64),
+                                   ctypes.POINTER(ctypes.c_uint64), ctypes.c_char_p,
+                                   ctypes.c_size_t]
+        self._release = getattr(lib, f"nvdb_walk_release_{backend}")
+        self._release.argtypes = [ctypes.POINTER(ctypes.c_uint64), ctypes.c_size_t]
+        for f in (self._tracked, self._next, self._emission):
+            f.restype = ctypes.c_int
+        self._release.restype = None
+
+    @staticmethod
+    def _indices(values):
+        idx = []
+        for v in values:
+            idx += dr.detail.collect_indices(v)
+        return (ctypes.c_uint64 * len(idx))(*idx)
+
+    def _call(self, fn, name, *args):
+        err = ctypes.create_string_buffer(512)
+        if fn(self.variant, *args, err, len(err)) != 0:
+            raise RuntimeError(f"nanovdb_mitsuba: {name}: {err.value.decode(errors='replace')}")
+
+    def _outputs(self, out, templates):
+        """The outputs as arrays of the templates' types (borrowed, then the
+        C side's references handed back)"""
+        values = dr.detail.update_indices(templates, list(out))
+        self._release(out, len(out))
+        return values
+
+    def tracked(self, medium, max_ratio=1.0):
+        """0: not tracked (the medium's own sample_interaction applies);
+        1: tracked through local majorants; 2: tracked and emissive"""
+        err = ctypes.create_string_buffer(512)
+        r = self._tracked(self.variant, medium_index(medium), max_ratio, err, len(err))
+        if r < 0:
+            raise RuntimeError(f"nanovdb_mitsuba: tracked: {err.value.decode(errors='replace')}")
+        return r
+
+    def next_collision(self, medium_id, ray, tmax, u, active, coarse_depth=2.0):
+        """The first tentative collision along `ray` up to tmax, its optical
+        depth -log(1 - u) under the walk's majorants: (t, majorant), t
+        infinite and majorant 0 where there is none. Detached."""
+        inp = self._indices([mi.Point3f(ray.o), mi.Vector3f(ray.d), mi.Float(tmax),
+                             mi.Float(u), mi.Bool(active)])
+        out = (ctypes.c_uint64 * 2)()
+        self._call(self._next, "next_collision", medium_id, coarse_depth, inp, out)
+        return self._outputs(out, (mi.Float(), mi.Float()))
+
+    def eval_emission(self, medium_id, mei, active):
+        """The medium's emitted radiance Le at mei.p (before sigma_a),
+        attached to its emission grid"""
+        values = [mi.Point3f(mei.p), mi.Float(mei.time)]
+        if mi.is_spectral:
+            values.append(mei.wavelengths)
+        values.append(mi.Bool(active))
+        inp = self._indices(values)
+        n = dr.size_v(mi.UnpolarizedSpectrum)
+        out = (ctypes.c_uint64 * n)()
+        self._call(self._emission, "eval_emission", medium_id, inp, out)
+        channels = self._outputs(out, tuple(mi.Float() for _ in range(n)))
+        return mi.UnpolarizedSpectrum(*channels) if n > 1 else mi.UnpolarizedSpectrum(channels[0])
