@@ -63,6 +63,9 @@ def main():
     ap.add_argument("--reference", default="",
                     help="the volume the target images are rendered from (default: --target)")
     ap.add_argument("--plugin", default="gridvolume", choices=["gridvolume", "nanovdbvolume"])
+    ap.add_argument("--integrator", default="prbvolpath", choices=["prbvolpath", "prbvolpathlocal"],
+                    help="the differentiable integrator (prbvolpathlocal: through the tree's "
+                         "local majorants, issue 36; with nanovdbvolume)")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--build", default="", help="a build folder holding plugins/")
     ap.add_argument("--views", type=int, default=8)
@@ -118,7 +121,7 @@ def main():
     # The volume to optimize: the same box and resolution (nanovdbvolume:
     # the same tree), one constant value
     opt = load(a.target, optimized=True)
-    scene = scene_with(opt, "prbvolpath", a.spp)
+    scene = scene_with(opt, a.integrator, a.spp)
     params = mi.traverse(scene)
     pkey = next(k for k in params.keys() if k.endswith("sigma_t." + key_suffix))
     start = float(truth.mean()) * 0.1
@@ -195,7 +198,7 @@ def main():
 
     warm = [r["time_s"] for r in rows[min(a.views, len(rows) - 1):]] or [rows[-1]["time_s"]]
     summary = dict(
-        plugin=a.plugin, target=os.path.abspath(a.target), variant=a.variant,
+        plugin=a.plugin, integrator=a.integrator, target=os.path.abspath(a.target), variant=a.variant,
         filter=a.filter if a.plugin == "nanovdbvolume" else "trilinear",
         views=a.views, res=a.res, spp=a.spp, max_depth=a.max_depth, iters=a.iters, lr=a.lr,
         values=n_values, box_voxels=box_voxels, tree_and_table_bytes=tree_bytes,
@@ -210,7 +213,8 @@ def main():
     os.makedirs(a.out, exist_ok=True)
     stem = os.path.join(a.out, f"{a.plugin}_{os.path.splitext(os.path.basename(a.target))[0]}" +
                         (f"_{a.filter}" if a.plugin == "nanovdbvolume" and a.filter != "trilinear"
-                         else ""))
+                         else "") +
+                        (f"_{a.integrator}" if a.integrator != "prbvolpath" else ""))
     with open(stem + ".json", "w") as f:
         json.dump(dict(summary=summary, rows=rows), f, indent=1)
     with open(stem + ".csv", "w") as f:
@@ -231,7 +235,7 @@ def main():
         ax[1].semilogy([r["elapsed_s"] for r in rows], [r["loss"] for r in rows])
         ax[1].set_xlabel("time [s]")
         ax[1].set_ylabel("image loss")
-        fig.suptitle(f"{a.plugin}, {os.path.basename(a.target)}, {a.variant}")
+        fig.suptitle(f"{a.integrator}, {a.plugin}, {os.path.basename(a.target)}, {a.variant}")
         fig.tight_layout()
         fig.savefig(stem + ".png", dpi=100)
     except ImportError:
@@ -252,8 +256,11 @@ def compare(out):
         if "summary" not in data:
             continue
         s = data["summary"]
-        case = os.path.basename(path)[:-5].split("_", 1)[1].replace("_stochastic_trilinear", "")
-        runs.setdefault(case, []).append((f"{s['plugin']}, {s.get('filter', 'trilinear')}", data))
+        case = (os.path.basename(path)[:-5].split("_", 1)[1].replace("_stochastic_trilinear", "")
+                .replace("_prbvolpathlocal", ""))
+        runs.setdefault(case, []).append(
+            (f"{s.get('integrator', 'prbvolpath')}, {s['plugin']}, {s.get('filter', 'trilinear')}",
+             data))
     for case, rs in runs.items():
         fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
         for label, data in rs:
@@ -264,7 +271,7 @@ def compare(out):
         ax[1].set_xlabel("time [s]")
         ax[0].set_ylabel("image loss (one view)")
         ax[0].legend(fontsize=8)
-        fig.suptitle(f"{case}: prbvolpath + Adam, {rs[0][1]['summary']['variant']}")
+        fig.suptitle(f"{case}: Adam, {rs[0][1]['summary']['variant']}")
         fig.tight_layout()
         fig.savefig(os.path.join(out, f"compare_{case}.png"), dpi=100)
         print(f"wrote {os.path.join(out, f'compare_{case}.png')}")

@@ -160,10 +160,14 @@ def test04_data_holds_active_values_in_documented_order(variant_llvm_ad_rgb, mak
 #  Gradients
 # ---------------------------------------------------------------------------
 
-def medium_scene(volume, integrator="prbvolpath", res=24, spp=16, scale=3.0, max_depth=6):
+def medium_scene(volume, integrator="prbvolpath", res=24, spp=16, scale=3.0, max_depth=6,
+                 albedo=0.7):
+    integrator = {"type": integrator, "max_depth": max_depth}
+    if integrator["type"] in ("prbvolpathlocal", "volpathlocal"):
+        integrator["max_majorant_ratio"] = 1.0  # (tracked, whatever the volume)
     return mi.load_dict({
         "type": "scene",
-        "integrator": {"type": integrator, "max_depth": max_depth},
+        "integrator": integrator,
         "sensor": {"type": "perspective", "fov": 40,
                    "to_world": mi.ScalarTransform4f().look_at([0.7, 0.6, 2.1], [0.5, 0.5, 0.5], [0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": res, "height": res,
@@ -177,7 +181,7 @@ def medium_scene(volume, integrator="prbvolpath", res=24, spp=16, scale=3.0, max
         "cube": {"type": "cube", "bsdf": {"type": "null"},
                  "to_world": mi.ScalarTransform4f().translate(0.5).scale(0.5),
                  "interior": {"type": "heterogeneous", "sigma_t": volume, "scale": scale,
-                              "albedo": 0.7}},
+                              "albedo": albedo}},
     })
 
 
@@ -239,7 +243,8 @@ def small_cloud():
     return mi.TensorXf(d[..., None])
 
 
-def fd_check(variant, make_grid, source, filter_type="trilinear", seeds=8):
+def fd_check(variant, make_grid, source, filter_type="trilinear", seeds=8,
+             integrator="prbvolpath"):
     """prbvolpath's reverse-mode derivative of the image mean and of one
     pixel, per entry of "data", against central differences of renders with
     the same seeds; the tolerance is 4 standard errors of the difference of
@@ -255,7 +260,8 @@ def fd_check(variant, make_grid, source, filter_type="trilinear", seeds=8):
     else:
         volume = {"type": "nanovdbvolume", "data": small_cloud()}
     volume.update(filter_type=filter_type, differentiable=True)
-    scene = medium_scene(volume, res=16, spp=64, scale=2.0 if source == "tiles" else 4.0)
+    scene = medium_scene(volume, integrator, res=16, spp=64,
+                         scale=2.0 if source == "tiles" else 4.0)
     params = mi.traverse(scene)
     key = data_key(params)
     base = np.array(params[key])

@@ -20,9 +20,13 @@ _LIB = None
 
 
 def _library():
+    """volpathlocal.so, the one Mitsuba loads (its file resolver's): a
+    second copy of the library would not know the first one's objects"""
     global _LIB
     if _LIB is None:
-        path = os.path.join(plugin_root(), "plugins", "volpathlocal.so")
+        path = str(mi.file_resolver().resolve("plugins/volpathlocal.so"))
+        if not os.path.isabs(path) or not os.path.exists(path):
+            path = os.path.join(plugin_root(), "plugins", "volpathlocal.so")
         if not os.path.exists(path):
             raise RuntimeError(f"nanovdb_mitsuba: {path} not found (the walk's C functions)")
         _LIB = ctypes.CDLL(path)

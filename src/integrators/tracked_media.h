@@ -72,9 +72,12 @@ template <typename Float, typename Spectrum> struct TrackedMedia {
 
     /**
      * Whether medium m is tracked through its volume's local majorants
-     * (find()'s rule), and then k: what tracking needs of it
+     * (find()'s rule), and then k: what tracking needs of it. `checked`:
+     * the rule was applied before (walk_bridge.cpp, once per scene), so the
+     * majorant check, which evaluates a kernel, is left out
      */
-    static bool track(const Medium *m, ScalarFloat max_ratio, TrackedMedium &k) {
+    static bool track(const Medium *m, ScalarFloat max_ratio, TrackedMedium &k,
+                      bool checked = false) {
         FindParameters p;
         const_cast<Medium *>(m)->traverse(&p);
         const Majorants *v = p.sigma_t ? dynamic_cast<const Majorants *>(p.sigma_t) : nullptr;
@@ -92,7 +95,7 @@ template <typename Float, typename Spectrum> struct TrackedMedia {
             return true;
         }
         // (the check evaluates a kernel: not while a frozen function records)
-        if (!recording_frozen_function<Float>() &&
+        if (!checked && !recording_frozen_function<Float>() &&
             !majorant_is_scale_times_max(m, p.scale * volume->max())) {
             Log(Debug, "volpathlocal: a medium's majorant is not scale x max(): "
                        "tracked as volpath does");

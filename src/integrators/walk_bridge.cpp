@@ -67,8 +67,10 @@ template <typename Float, typename Spectrum> struct Bridge {
         return m;
     }
 
-    static bool track(uint32_t id, ScalarFloat max_ratio, TrackedMedium &k) {
-        return TrackedMedia<Float, Spectrum>::track(medium(id), max_ratio, k);
+    /// (`checked`: tracked() said so before, for this scene)
+    static bool track(uint32_t id, ScalarFloat max_ratio, TrackedMedium &k,
+                      bool checked = false) {
+        return TrackedMedia<Float, Spectrum>::track(medium(id), max_ratio, k, checked);
     }
 
     static Float in(uint64_t index) { return dr::detach(Float::borrow(index)); }
@@ -94,7 +96,7 @@ template <typename Float, typename Spectrum> struct Bridge {
     static void next_collision(uint32_t id, float coarse_depth, const uint64_t *idx,
                                uint64_t *out) {
         TrackedMedium k;
-        if (!track(id, 1.f, k))
+        if (!track(id, 1.f, k, true))
             Throw("the medium is not tracked through local majorants");
         Ray3f ray;
         ray.o = Point3f(in(idx[0]), in(idx[1]), in(idx[2]));
@@ -116,7 +118,7 @@ template <typename Float, typename Spectrum> struct Bridge {
     /// emission grid (their gradients reach its values)
     static void eval_emission(uint32_t id, const uint64_t *idx, uint64_t *out) {
         TrackedMedium k;
-        if (!track(id, 1.f, k) || !k.emissive)
+        if (!track(id, 1.f, k, true) || !k.emissive)
             Throw("the medium does not emit");
         MediumInteraction3f mei = dr::zeros<MediumInteraction3f>();
         mei.p = Point3f(in(idx[0]), in(idx[1]), in(idx[2]));

@@ -1,0 +1,259 @@
+"""prbvolpathlocal (issue 36): Path Replay Backpropagation through the tree's
+local majorants (python/nanovdb_mitsuba/prbvolpathlocal.py, its walk through
+src/integrators/walk_bridge.cpp).
+
+References: volpath's images (primal), prbvolpath's gradients on the same
+scene (their expectations), central finite differences of renders with the
+same seeds (single values, and a global scale of float, Vec3f, albedo and
+emission grids), the primal pass itself (the adjoint pass must replay its
+path: what it subtracts sums to what the primal pass added), and the
+volume's own lookups (the rebuilt majorants bound them after an update, and
+equal a fresh load's)."""
+import numpy as np
+import pytest
+
+import drjit as dr
+import mitsuba as mi
+
+from conftest import _setup_variant
+from test_differentiable import data_key, fd_check, medium_scene
+
+
+def ball(n=24, seed=1):
+    """A noisy ball in an n^3 box, zero outside it (a sparse tree)"""
+    rng = np.random.default_rng(seed)
+    x = np.linspace(-1, 1, n)
+    z, y, x = np.meshgrid(x, x, x, indexing="ij")
+    b = np.clip(1.0 - 1.4 * np.sqrt(x * x + y * y + z * z), 0, None)
+    return (2.5 * b * rng.uniform(0.5, 1.5, b.shape)).astype(np.float32)
+
+
+def ball_volume(filter_type="trilinear", **kw):
+    return {"type": "nanovdbvolume", "data": mi.TensorXf(ball()[..., None]),
+            "differentiable": True, "filter_type": filter_type, "max_value": 4.0, **kw}
+
+
+@pytest.fixture
+def ad_rgb():
+    _setup_variant("llvm_ad_rgb")
+    import nanovdb_mitsuba
+    nanovdb_mitsuba.setup()  # (registers prbvolpathlocal in this variant)
+
+
+def z_scores(a, b):
+    """Per column: (mean a - mean b) / its standard error (rows: seeds)"""
+    a, b = np.asarray(a), np.asarray(b)
+    se = np.sqrt(a.var(axis=0, ddof=1) / len(a) + b.var(axis=0, ddof=1) / len(b))
+    return (a.mean(axis=0) - b.mean(axis=0)) / np.maximum(se, 1e-12)
+
+
+def test01_primal_equals_volpath(ad_rgb):
+    """The image in expectation: 4x4 blocks of pixels over 12 seeds each"""
+    blocks = {}
+    for integrator in ("volpath", "prbvolpathlocal"):
+        scene = medium_scene(ball_volume(), integrator, res=16, spp=32)
+        rows = []
+        for seed in range(12):
+            img = np.array(mi.render(scene, seed=seed)).mean(axis=-1)
+            rows.append(img.reshape(4, 4, 4, 4).mean(axis=(1, 3)).ravel())
+        blocks[integrator] = rows
+    z = z_scores(blocks["prbvolpathlocal"], blocks["volpath"])
+    print("block z-scores:", np.round(z, 2))
+    assert np.abs(z).max() < 4.0
+    assert np.mean(blocks["prbvolpathlocal"]) > 0.05
+
+
+def gradients(integrator, seeds, filter_type="trilinear", spp=16):
+    """Per seed: the gradient of a weighted image mean (fixed random weights)
+    with respect to "data", summed over 64 blocks of value indices"""
+    scene = medium_scene(ball_volume(filter_type), integrator, res=16, spp=spp)
+    params = mi.traverse(scene)
+    key = data_key(params)
+    weights = mi.TensorXf(np.random.default_rng(3).uniform(0, 2, (16, 16, 3)).astype(np.float32))
+    n = dr.width(params[key])
+    block = np.arange(n) * 64 // n
+    rows = []
+    for seed in seeds:
+        dr.enable_grad(params[key])
+        params.update()
+        image = mi.render(scene, params, seed=seed)
+        dr.backward(dr.mean(image * weights))
+        g = np.array(dr.grad(params[key]))
+        rows.append(np.bincount(block, weights=g, minlength=64))
+        dr.disable_grad(params[key])
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("filter_type", ["trilinear", "stochastic_trilinear"])
+def test02_gradients_equal_prbvolpath(ad_rgb, filter_type):
+    """In expectation, block by block: prbvolpath's global majorant and the
+    walk's local ones give different paths, the same derivative"""
+    ours = gradients("prbvolpathlocal", range(16), filter_type)
+    ref = gradients("prbvolpath", range(100, 116), filter_type)
+    z = z_scores(ours, ref)
+    big = np.abs(ref.mean(axis=0)) > 0.05 * np.abs(ref.mean(axis=0)).max()
+    print(f"{filter_type}: {big.sum()} blocks, max |z| {np.abs(z).max():.2f}, "
+          f"total {ours.mean(axis=0).sum():.4g} vs {ref.mean(axis=0).sum():.4g}")
+    assert np.abs(z).max() < 4.5
+    # and the total: the same sign and, within its standard error, size
+    assert abs(z_scores(ours.sum(axis=1, keepdims=True), ref.sum(axis=1, keepdims=True))[0]) < 4
+    assert np.sign(ours.sum(axis=1).mean()) == np.sign(ref.sum(axis=1).mean())
+
+
+@pytest.mark.parametrize("filter_type", ["trilinear", "stochastic_trilinear"])
+def test03_gradients_match_finite_differences(make_grid, filter_type):
+    """Single values, the image mean and one pixel (test_differentiable's
+    check, through prbvolpathlocal)"""
+    fd_check("llvm_ad_rgb", make_grid, "voxels", filter_type=filter_type,
+             integrator="prbvolpathlocal")
+
+
+def scaled_medium_scene(kind, integrator, spp=32, res=12):
+    """The ball with one grid of the kind to scale: sigma_t float, sigma_t
+    Vec3f, an albedo grid, or (emissiveheterogeneous) an emission grid"""
+    d = ball()
+    sigma = {"type": "nanovdbvolume", "data": mi.TensorXf(d[..., None]), "max_value": 4.0,
+             "differentiable": kind == "float"}
+    if kind == "vec3f":
+        rgb = np.stack([d, 0.6 * d, 0.3 * d], axis=-1)
+        sigma = {"type": "nanovdbvolume", "data": mi.TensorXf(rgb), "max_value": 4.0,
+                 "differentiable": True}
+    medium = {"type": "heterogeneous", "sigma_t": sigma, "scale": 3.0, "albedo": 0.7}
+    if kind == "albedo":
+        a = np.where(d > 0, 0.6, 0.0).astype(np.float32)
+        medium["albedo"] = {"type": "nanovdbvolume", "data": mi.TensorXf(a[..., None]),
+                            "differentiable": True}
+    if kind == "emission":
+        e = np.where(d > 0, 2.0, 0.0).astype(np.float32)
+        medium = {"type": "emissiveheterogeneous", "sigma_t": sigma, "scale": 3.0,
+                  "albedo": 0.5,
+                  "emission": {"type": "nanovdbvolume", "data": mi.TensorXf(e[..., None]),
+                               "differentiable": True}}
+    return mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": integrator, "max_depth": 6, "max_majorant_ratio": 1.0},
+        "sensor": {"type": "perspective", "fov": 40,
+                   "to_world": mi.ScalarTransform4f().look_at([0.7, 0.6, 2.1], [0.5, 0.5, 0.5],
+                                                               [0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": res, "height": res,
+                            "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+                   "sampler": {"type": "independent", "sample_count": spp}},
+        "emitter": {"type": "constant"},
+        "cube": {"type": "cube", "bsdf": {"type": "null"},
+                 "to_world": mi.ScalarTransform4f().translate(0.5).scale(0.5),
+                 "interior": medium}})
+
+
+@pytest.mark.parametrize("kind", ["float", "vec3f", "albedo", "emission"])
+def test04_global_scale_matches_finite_differences(ad_rgb, kind):
+    """d(image mean)/ds with every value of the grid times (1 + s): the
+    gradient's dot product with the values against central differences of
+    renders with the same seeds (s = +-0.05), over 12 seeds"""
+    scene = scaled_medium_scene(kind, "prbvolpathlocal")
+    params = mi.traverse(scene)
+    suffix = {"float": "sigma_t.data", "vec3f": "sigma_t.data", "albedo": "albedo.data",
+              "emission": "emission.data"}[kind]
+    key = next(k for k in params.keys() if k.endswith(suffix))
+    base = np.array(params[key])
+    h = 0.05
+    ad, fd = [], []
+    for seed in range(12):
+        params[key] = mi.Float(base)
+        dr.enable_grad(params[key])
+        params.update()
+        dr.backward(dr.mean(mi.render(scene, params, seed=seed)))
+        ad.append(float(np.dot(np.array(dr.grad(params[key])), base)))
+        dr.disable_grad(params[key])
+        values = []
+        for s in (1 + h, 1 - h):
+            params[key] = mi.Float(base * s)
+            params.update()
+            values.append(float(np.array(mi.render(scene, params, seed=seed)).mean()))
+        fd.append((values[0] - values[1]) / (2 * h))
+    params[key] = mi.Float(base)
+    params.update()
+    ad, fd = np.array(ad), np.array(fd)
+    se = np.std(ad - fd, ddof=1) / np.sqrt(len(ad))
+    print(f"{kind}: AD {ad.mean():.5g} FD {fd.mean():.5g} (standard error {se:.2g})")
+    assert abs(fd.mean()) > 5 * se  # the derivative is measured, not noise
+    assert abs(ad.mean() - fd.mean()) <= 4 * se + 0.03 * abs(fd.mean())
+
+
+@pytest.mark.parametrize("emissive", [False, True])
+def test05_adjoint_pass_replays_the_primal_path(ad_rgb, emissive):
+    """The adjoint pass starts from the primal pass's radiance and subtracts
+    every contribution as it meets it again: where it sees the same
+    collisions, voxels and shadow rays, what is left at the end is 0 to
+    float rounding, lane by lane"""
+    if emissive:
+        scene = scaled_medium_scene("emission", "prbvolpathlocal", spp=4, res=16)
+    else:
+        scene = medium_scene(ball_volume("stochastic_trilinear"), "prbvolpathlocal",
+                             res=16, spp=4)
+    integrator, sensor = scene.integrator(), scene.sensors()[0]
+    params = mi.traverse(scene)
+    key = next(k for k in params.keys() if k.endswith(".data"))
+    dr.enable_grad(params[key])
+    params.update()
+
+    def pass_(mode, state_in=None):
+        sampler, _ = integrator.prepare(sensor, 5, 4)
+        ray, _, _ = integrator.sample_rays(scene, sensor, sampler)
+        with dr.suspend_grad(when=mode == dr.ADMode.Primal), \
+                dr.resume_grad(when=mode != dr.ADMode.Primal):
+            return integrator.sample(mode, scene, sampler, ray,
+                                     None if mode == dr.ADMode.Primal else mi.Spectrum(1.0),
+                                     state_in, mi.Bool(True))
+
+    L, valid, _, _ = pass_(dr.ADMode.Primal)
+    L = dr.detach(L)
+    dr.eval(L)
+    _, _, _, left = pass_(dr.ADMode.Backward, L)
+    L, left = np.array(L).T, np.array(left).T  # (lanes, channels)
+    assert L.shape[0] == 16 * 16 * 4 and L.max() > 0.1
+    worst = np.abs(left).max(axis=-1) / np.maximum(np.abs(L).max(axis=-1), 1e-3)
+    print(f"emissive={emissive}: {L.shape[0]} lanes, radiance left after the replay: "
+          f"largest {np.abs(left).max():.2e} ({worst.max():.2e} of its lane's)")
+    assert worst.max() < 1e-4
+    assert np.count_nonzero(np.array(dr.grad(params[key]))) > 0
+
+
+def test06_rebuilt_majorants_bound_lookups(ad_rgb):
+    """After an update that raises some values 100x and sets others to 0,
+    the walk's majorant at a tentative collision bounds the lookup there
+    (10^6 rays through the box): the per-node majorants follow the values"""
+    from nanovdb_mitsuba.walk_bridge import WalkBridge, medium_index
+    rng = np.random.default_rng(4)
+    m = mi.load_dict({"type": "heterogeneous", "scale": 2.0, "sigma_t": {
+        "type": "nanovdbvolume", "data": mi.TensorXf(ball()[..., None]),
+        "differentiable": True, "filter_type": "trilinear"}})
+    params = mi.traverse(m)
+    key = data_key(params)
+    values = np.array(params[key])
+    change = rng.uniform(0, 1, values.shape)
+    values = np.where(change < 0.1, values * 100, np.where(change < 0.4, 0, values))
+    params[key] = mi.Float(values.astype(np.float32))
+    params.update()
+
+    bridge = WalkBridge.for_variant()
+    assert bridge.tracked(m) == 1
+    n = 1_000_000
+    o = rng.uniform(-0.2, 1.2, (n, 3)).astype(np.float32)
+    dirs = rng.uniform(0, 1, (n, 3)).astype(np.float32) - o
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    ray = mi.Ray3f(mi.Point3f(*o.T), mi.Vector3f(*dirs.T))
+    u = mi.Float(rng.uniform(0, 1, n).astype(np.float32))
+    for coarse in (0.0, 2.0):  # every leaf; thin nodes crossed whole
+        t, majorant = bridge.next_collision(medium_index(m), ray, mi.Float(dr.inf), u,
+                                            mi.Bool(True), coarse_depth=coarse)
+        hit = dr.isfinite(t)
+        mei = dr.zeros(mi.MediumInteraction3f, n)
+        mei.p = ray(dr.select(hit, t, 0))
+        _, _, sigma_t = m.get_scattering_coefficients(mei, hit)
+        majorant, sigma_t, hit = (np.array(majorant), np.array(sigma_t[0]), np.array(hit))
+        print(f"coarse {coarse}: {hit.sum()} tentative collisions; lookup / majorant at "
+              f"most {(sigma_t[hit] / majorant[hit]).max():.4f}; largest majorant "
+              f"{majorant.max():.1f}")
+        assert hit.sum() > 100_000
+        assert np.all(sigma_t[hit] <= majorant[hit] * (1 + 1e-5))
+        assert majorant.max() >= 2.0 * 0.9 * values.max()
