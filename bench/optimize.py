@@ -168,6 +168,26 @@ def main():
     step_at_target = statistics.median(timed)
     print(f"render + backward at the target's values: {step_at_target:.3f} s (median of "
           f"{len(timed)})", flush=True)
+    # nanovdbvolume: what an update costs (issue 36): params.update() (the
+    # value policy and max() on the backend), then the per-node majorants
+    # rebuilt (on the host, when the walk next asks: mi.traverse asks too);
+    # medians of 3, at the target's values
+    update_s, rebuild_s = [], []
+    if a.plugin == "nanovdbvolume":
+        for r in range(3):
+            params[pkey] = params[pkey] * (1.0 + 1e-6 * (r + 1))  # (a new value: an equal one is no update)
+            dr.eval(params[pkey])
+            dr.sync_thread()
+            t0 = time.perf_counter()
+            params.update()
+            dr.sync_thread()
+            t1 = time.perf_counter()
+            mi.traverse(opt)
+            dr.sync_thread()
+            update_s.append(t1 - t0)
+            rebuild_s.append(time.perf_counter() - t1)
+        print(f"update {statistics.median(update_s) * 1e3:.1f} ms, majorants rebuilt "
+              f"{statistics.median(rebuild_s) * 1e3:.1f} ms", flush=True)
     params[pkey] = start_values
     params.update()
 
@@ -206,6 +226,8 @@ def main():
         peak_rss_above_loaded=max(peak_rss_bytes() - rss_loaded, 0),
         time_per_iter_s=statistics.median(warm),
         step_at_target_s=step_at_target,
+        update_s=statistics.median(update_s) if update_s else None,
+        majorant_rebuild_s=statistics.median(rebuild_s) if rebuild_s else None,
         volume_rmse_start=box_rmse(np.full_like(truth, truth.mean() * 0.1)),
         volume_rmse_end=rows[-1]["volume_rmse"], loss_end=rows[-1]["loss"])
     print(json.dumps(summary, indent=1))

@@ -12,6 +12,9 @@ The copies, each with its upstream file and its marker:
 
   src/integrators/volpathlocal.cpp     src/integrators/volpath.cpp   volpathlocal
   src/media/emissiveheterogeneous.cpp  src/media/heterogeneous.cpp   emissiveheterogeneous
+  python/nanovdb_mitsuba/prbvolpathlocal.py
+                        src/python/python/ad/integrators/prbvolpath.py   prbvolpathlocal
+                                       (a Python copy: its marker is ``# MARKER``)
 
 The rule. Both files are compared line by line after four steps: the
 ``/**!`` documentation block is left out (each plugin documents itself),
@@ -44,6 +47,8 @@ COPIES = [
     ("src/integrators/volpathlocal.cpp", "src/integrators/volpath.cpp", "volpathlocal"),
     ("src/media/emissiveheterogeneous.cpp", "src/media/heterogeneous.cpp",
      "emissiveheterogeneous"),
+    ("python/nanovdb_mitsuba/prbvolpathlocal.py", "src/python/python/ad/integrators/prbvolpath.py",
+     "prbvolpathlocal"),
 ]
 
 
@@ -94,7 +99,7 @@ def hunks(upstream_lines, copy_lines):
 
 def is_marked(hunk, copy_lines, marker, lookback=LOOKBACK):
     """A marker comment on the hunk's copy lines or just above them."""
-    pattern = re.compile(r"(//|/\*)\s*" + re.escape(marker) + r"\b")
+    pattern = re.compile(r"(//|/\*|#)\s*" + re.escape(marker) + r"\b")
     if any(pattern.search(t) for _, t in hunk.copy):
         return True
     above = [t for t in copy_lines[:hunk.copy_at - 1] if t.strip()][-lookback:] if lookback else []
@@ -133,7 +138,8 @@ def main(argv):
         copy_lines = (root / copy).read_text().splitlines()
         hs, bad = unmarked(up.read_text().splitlines(), copy_lines, marker)
         reflows = sum(h.reflow() for h in hs)
-        print(f"{copy} against {upstream} (marker: // {marker}): {len(hs)} hunks, "
+        comment = "#" if copy.endswith(".py") else "//"
+        print(f"{copy} against {upstream} (marker: {comment} {marker}): {len(hs)} hunks, "
               f"{len(hs) - reflows - len(bad)} marked, {reflows} reflowed, {len(bad)} unmarked")
         for h in bad:
             print(describe(h))

@@ -15,7 +15,8 @@
 #      medium without emission), bench/fire_nee.py (next-event estimation
 #      toward the fire against collisions alone) and bench/optimize.py (prbvolpath on the
 #      shared smoke through gridvolume and nanovdbvolume, trilinear and
-#      stochastic_trilinear),
+#      stochastic_trilinear, and prbvolpathlocal through the tree's local
+#      majorants with stochastic_trilinear),
 # and writes logs and results to --out. Needs: Python 3 with numpy and pytest
 # (the version the kit was packed for), an NVIDIA driver.
 #
@@ -175,7 +176,8 @@ if want fire_nee; then
        --out "$OUT/bench/fire_nee.md"
 fi
 if want optimize; then
-  optimize() {  # prbvolpath on the shared smoke: gridvolume, nanovdbvolume x 2 filters
+  optimize() {  # the shared smoke: prbvolpath through gridvolume, nanovdbvolume x 2 filters;
+                # prbvolpathlocal (issue 36) through nanovdbvolume, stochastic_trilinear
     local smoke="$NVDB_SHARED_DATA/openvdb_smoke1_fog.vdb" d="$H/bench-data/optimize"
     [ -f "$smoke" ] || { echo "no $smoke: the kit was packed without ../shared/data"; return 1; }
     mkdir -p "$d"
@@ -190,6 +192,10 @@ if want optimize; then
           --plugin nanovdbvolume --reference "$d/smoke.vol" --filter $f --out "$o" \
           $OPTIMIZE_ARGS || rc=1
     done
+    # shellcheck disable=SC2086
+    "$PYTHON" bench/optimize.py --variant cuda_ad_rgb --target "$d/smoke.nvdb" \
+        --plugin nanovdbvolume --reference "$d/smoke.vol" --filter stochastic_trilinear \
+        --integrator prbvolpathlocal --out "$o" $OPTIMIZE_ARGS || rc=1
     return $rc
   }
   export H OUT PYTHON OPTIMIZE_ARGS   # (what optimize reads, in step's child bash too)

@@ -100,20 +100,27 @@ def test02_gradients_equal_prbvolpath(ad_rgb, filter_type):
     assert np.sign(ours.sum(axis=1).mean()) == np.sign(ref.sum(axis=1).mean())
 
 
-@pytest.mark.parametrize("filter_type", ["trilinear", "stochastic_trilinear"])
-def test03_gradients_match_finite_differences(make_grid, filter_type):
+def test03_gradients_match_finite_differences(ad_rgb, make_grid):
     """Single values, the image mean and one pixel (test_differentiable's
-    check, through prbvolpathlocal)"""
-    fd_check("llvm_ad_rgb", make_grid, "voxels", filter_type=filter_type,
+    check, through prbvolpathlocal, with the filter optimization uses).
+    Weaker than prbvolpath's: a value's change changes its nodes' majorants,
+    so the renders of a finite difference track other collisions and agree
+    less (standard errors 2-5x prbvolpath's); test04's global scales are the
+    sharper check"""
+    fd_check("llvm_ad_rgb", make_grid, "voxels", filter_type="stochastic_trilinear",
              integrator="prbvolpathlocal")
 
 
 def scaled_medium_scene(kind, integrator, spp=32, res=12):
     """The ball with one grid of the kind to scale: sigma_t float, sigma_t
-    Vec3f, an albedo grid, or (emissiveheterogeneous) an emission grid"""
+    Vec3f, an albedo grid, or (emissiveheterogeneous) an emission grid;
+    "constant": sigma_t one value wherever the ball is (where an
+    optimization starts: each node's values at its majorant)"""
     d = ball()
+    if kind == "constant":
+        d = np.where(d > 0, 1.2, 0).astype(np.float32)
     sigma = {"type": "nanovdbvolume", "data": mi.TensorXf(d[..., None]), "max_value": 4.0,
-             "differentiable": kind == "float"}
+             "differentiable": kind in ("float", "constant")}
     if kind == "vec3f":
         rgb = np.stack([d, 0.6 * d, 0.3 * d], axis=-1)
         sigma = {"type": "nanovdbvolume", "data": mi.TensorXf(rgb), "max_value": 4.0,
@@ -144,14 +151,14 @@ def scaled_medium_scene(kind, integrator, spp=32, res=12):
                  "interior": medium}})
 
 
-@pytest.mark.parametrize("kind", ["float", "vec3f", "albedo", "emission"])
+@pytest.mark.parametrize("kind", ["float", "constant", "vec3f", "albedo", "emission"])
 def test04_global_scale_matches_finite_differences(ad_rgb, kind):
     """d(image mean)/ds with every value of the grid times (1 + s): the
     gradient's dot product with the values against central differences of
     renders with the same seeds (s = +-0.05), over 12 seeds"""
     scene = scaled_medium_scene(kind, "prbvolpathlocal")
     params = mi.traverse(scene)
-    suffix = {"float": "sigma_t.data", "vec3f": "sigma_t.data", "albedo": "albedo.data",
+    suffix = {"float": "sigma_t.data", "constant": "sigma_t.data", "vec3f": "sigma_t.data", "albedo": "albedo.data",
               "emission": "emission.data"}[kind]
     key = next(k for k in params.keys() if k.endswith(suffix))
     base = np.array(params[key])
@@ -257,3 +264,31 @@ def test06_rebuilt_majorants_bound_lookups(ad_rgb):
         assert hit.sum() > 100_000
         assert np.all(sigma_t[hit] <= majorant[hit] * (1 + 1e-5))
         assert majorant.max() >= 2.0 * 0.9 * values.max()
+
+
+@pytest.mark.parametrize("policy", ["clamp", "error"])
+def test07_update_with_bad_values_follows_the_policy(ad_rgb, policy):
+    """NaN and negative values from an optimizer step: invalid_values="clamp"
+    renders them as 0 (the same image, same seed, as zeros put there), and
+    "error" refuses the update, naming the volume and the problem"""
+    scene = medium_scene(ball_volume(invalid_values=policy), "prbvolpathlocal", res=12, spp=8)
+    params = mi.traverse(scene)
+    key = data_key(params)
+    values = np.array(params[key])
+    bad = values.copy()
+    bad[::7] = np.nan
+    bad[3::7] = -1.0
+    zeros = values.copy()
+    zeros[::7] = 0
+    zeros[3::7] = 0
+    params[key] = mi.Float(bad)
+    if policy == "error":
+        with pytest.raises(RuntimeError, match=r"nanovdbvolume.*NaN"):
+            params.update()
+        return
+    params.update()
+    image = np.array(mi.render(scene, params, seed=3))
+    params[key] = mi.Float(zeros)
+    params.update()
+    assert np.all(np.isfinite(image))
+    np.testing.assert_array_equal(image, np.array(mi.render(scene, params, seed=3)))

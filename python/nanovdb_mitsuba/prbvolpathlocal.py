@@ -24,7 +24,17 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
     BSD-3-Clause), its structure, names and comments, with each difference
     marked ``# prbvolpathlocal:``. Parameters: ``prbvolpath``'s
     (``max_depth``, ``rr_depth``, ``hide_emitters``), and
-    ``coarse_optical_depth`` and ``max_majorant_ratio`` as ``volpathlocal``'s.
+    ``coarse_optical_depth`` and ``max_majorant_ratio`` as ``volpathlocal``'s,
+    and ``majorant_headroom`` (default 2): the walk's majorants are used
+    times this factor. Differential delta tracking learns a value's
+    derivative from the null collisions, with weight :math:`1/\mu_n`; where
+    the density reaches its majorant (:math:`\mu_n = 0`: a node of one
+    value, e.g. a volume that starts constant) no null collision happens
+    and the derivative is lost, and near it the weights' variance is large.
+    ``prbvolpath`` has this at its one global maximum (hence the advice to
+    give ``max_value`` headroom); local majorants reach every node's
+    maximum, so the headroom is built in: at least half the tentative
+    collisions are null. 1 is the tight walk.
 
     A medium that ``volpathlocal`` tracks (``heterogeneous`` or
     ``emissiveheterogeneous`` over a ``nanovdbvolume``) is tracked here
@@ -47,6 +57,10 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
         # tracked media of the scene last prepared
         self.coarse_depth = props.get("coarse_optical_depth", 2.0)
         self.max_ratio = props.get("max_majorant_ratio", 0.5)
+        self.headroom = props.get("majorant_headroom", 2.0)
+        if not (self.headroom >= 1 and self.headroom < float("inf")):
+            raise ValueError(f"prbvolpathlocal: majorant_headroom must be a finite value >= 1, "
+                             f"got {self.headroom}")
         if not (self.coarse_depth >= 0 and self.coarse_depth < float("inf")):
             raise ValueError("prbvolpathlocal: coarse_optical_depth must be a finite value "
                              f">= 0, got {self.coarse_depth}")
@@ -62,10 +76,10 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
         self.is_prepared = False
 
     def prepare_scene(self, scene):
-        # prbvolpathlocal: prepared per scene (upstream: once), and the
-        # tracked media found (as volpathlocal finds them)
+        # prbvolpathlocal: prepared per scene (upstream: once)
         if self.is_prepared and self.prepared_for is scene:
             return
+        # prbvolpathlocal: the tracked media (as volpathlocal finds them)
         self.tracked = []
         seen = set()
         media = [m for shape in scene.shapes()
@@ -183,12 +197,13 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
 
                 # Evaluate ratio of transmittance and free-flight PDF
                 # prbvolpathlocal: (the untracked lanes; a tracked lane's is
-                # 1 / majorant at a tentative collision, 1 past the last)
+                # 1 / majorant at a tentative collision, 1 past the last:
+                # the weight's two lines)
                 tr, free_flight_pdf = medium.transmittance_eval_pdf(mei, si, active_medium & ~tracked)
                 tr_pdf = index_spectrum(free_flight_pdf, channel)
                 weight = mi.Spectrum(1.0)
-                weight[active_medium & ~tracked] *= dr.select(tr_pdf > 0.0, tr / dr.detach(tr_pdf), 0.0)
-                weight[tracked & mei.is_valid()] *= dr.rcp(dr.detach(index_spectrum(mei.combined_extinction, channel)))
+                weight[active_medium & ~tracked] *= dr.select(tr_pdf > 0.0, tr / dr.detach(tr_pdf), 0.0)  # prbvolpathlocal
+                weight[tracked & mei.is_valid()] *= dr.rcp(dr.detach(index_spectrum(mei.combined_extinction, channel)))  # prbvolpathlocal
 
                 escaped_medium = active_medium & ~mei.is_valid()
                 active_medium &= mei.is_valid()
@@ -488,8 +503,9 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
         emitted = mi.Spectrum(0.0)
         for m, index, emits in self.tracked:
             in_k = tracked & (medium == mi.MediumPtr(m))
+            # (the walk's majorant times the headroom: see the class's doc)
             t, majorant = self.bridge.next_collision(index, ray, tmax, u, in_k,
-                                                     self.coarse_depth)
+                                                     self.coarse_depth, self.headroom)
             hit = in_k & dr.isfinite(t)
             k = dr.zeros(mi.MediumInteraction3f)
             k.t = t
@@ -511,9 +527,10 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
         return emitted
 
     def to_string(self):
-        return f'PRBVolpathLocalIntegrator[max_depth = {self.max_depth}]'
+        return f'PRBVolpathLocalIntegrator[max_depth = {self.max_depth}]'  # prbvolpathlocal: its name
 
 
+# prbvolpathlocal: registered by nanovdb_mitsuba (setup()), per variant
 def register():
     """Registers prbvolpathlocal in the current variant (an *_ad_* one)"""
     mi.register_integrator("prbvolpathlocal", lambda props: PRBVolpathLocalIntegrator(props))

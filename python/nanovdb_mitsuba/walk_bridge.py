@@ -61,7 +61,7 @@ class WalkBridge:
         self._tracked.argtypes = [ctypes.c_char_p, ctypes.c_uint32, ctypes.c_float,
                                   ctypes.c_char_p, ctypes.c_size_t]
         self._next = getattr(lib, f"nvdb_walk_next_collision_{backend}")
-        self._next.argtypes = [ctypes.c_char_p, ctypes.c_uint32, ctypes.c_float,
+        self._next.argtypes = [ctypes.c_char_p, ctypes.c_uint32, ctypes.c_float, ctypes.c_float,
                                ctypes.POINTER(ctypes.c_uint64), ctypes.POINTER(ctypes.c_uint64),
                                ctypes.c_char_p, ctypes.c_size_t]
         self._emission = getattr(lib, f"nvdb_walk_eval_emission_{backend}")
@@ -103,14 +103,15 @@ class WalkBridge:
             raise RuntimeError(f"nanovdb_mitsuba: tracked: {err.value.decode(errors='replace')}")
         return r
 
-    def next_collision(self, medium_id, ray, tmax, u, active, coarse_depth=2.0):
+    def next_collision(self, medium_id, ray, tmax, u, active, coarse_depth=2.0, headroom=1.0):
         """The first tentative collision along `ray` up to tmax, its optical
-        depth -log(1 - u) under the walk's majorants: (t, majorant), t
-        infinite and majorant 0 where there is none. Detached."""
+        depth -log(1 - u) under the walk's majorants times `headroom` (>= 1):
+        (t, majorant), t infinite and majorant 0 where there is none.
+        Detached."""
         inp = self._indices([mi.Point3f(ray.o), mi.Vector3f(ray.d), mi.Float(tmax),
                              mi.Float(u), mi.Bool(active)])
         out = (ctypes.c_uint64 * 2)()
-        self._call(self._next, "next_collision", medium_id, coarse_depth, inp, out)
+        self._call(self._next, "next_collision", medium_id, coarse_depth, headroom, inp, out)
         return self._outputs(out, (mi.Float(), mi.Float()))
 
     def eval_emission(self, medium_id, mei, active):

@@ -91,10 +91,12 @@ template <typename Float, typename Spectrum> struct Bridge {
      * where the walk ends before tmax, or the ray misses the medium) and
      * the majorant there (scale times the segment's bound; 0 where none).
      * A new tentative collision from a null one is this from there (the
-     * Poisson process of tentative collisions has no memory).
+     * Poisson process of tentative collisions has no memory). `headroom`
+     * (>= 1) multiplies every majorant: at scale x bound x headroom the
+     * optical depth -log(1 - u) is -log(1 - u) / headroom under the walk's.
      */
-    static void next_collision(uint32_t id, float coarse_depth, const uint64_t *idx,
-                               uint64_t *out) {
+    static void next_collision(uint32_t id, float coarse_depth, float headroom,
+                               const uint64_t *idx, uint64_t *out) {
         TrackedMedium k;
         if (!track(id, 1.f, k, true))
             Throw("the medium is not tracked through local majorants");
@@ -105,10 +107,13 @@ template <typename Float, typename Spectrum> struct Bridge {
         Mask active = Mask::borrow(idx[8]);
         auto [mint, maxt, wr] = Tracker::span(k, ray, tmax, dr::opaque<Float>(coarse_depth),
                                               active);
-        Flight f = Tracker::begin_flight(k, wr, mint, maxt, -dr::log(1.f - u), active, false);
+        // (headroom: every majorant times it, i.e. the scale's rate of
+        // tentative collisions; tau against the walk's own majorants)
+        Flight f = Tracker::begin_flight(k, wr, mint, maxt, -dr::log(1.f - u) / headroom, active,
+                                         false);
         Tracker::next_collision(k, wr, f, false);
         Float t = dr::select(f.alive, f.t, dr::Infinity<Float>),
-              majorant = dr::select(f.alive, Tracker::rate(k, f.walk, false).first, 0.f);
+              majorant = dr::select(f.alive, headroom * Tracker::rate(k, f.walk, false).first, 0.f);
         out[0] = t.release();
         out[1] = majorant.release();
     }
@@ -191,7 +196,8 @@ NAMESPACE_END(mitsuba)
 #define NVDB_BRIDGE_TRACKED(name, F, S)                                                   \
     NVDB_BRIDGE_DISPATCH(name, F, S, return B::tracked(id, max_ratio))
 #define NVDB_BRIDGE_NEXT(name, F, S)                                                      \
-    NVDB_BRIDGE_DISPATCH(name, F, S, B::next_collision(id, coarse_depth, in, out); return 0)
+    NVDB_BRIDGE_DISPATCH(name, F, S, B::next_collision(id, coarse_depth, headroom, in, out); \
+                         return 0)
 #define NVDB_BRIDGE_EMISSION(name, F, S)                                                  \
     NVDB_BRIDGE_DISPATCH(name, F, S, B::eval_emission(id, in, out); return 0)
 
@@ -206,8 +212,8 @@ NAMESPACE_END(mitsuba)
         });                                                                                \
     }                                                                                      \
     extern "C" MI_EXPORT int nvdb_walk_next_collision_##suffix(                            \
-        const char *variant, uint32_t id, float coarse_depth, const uint64_t *in,          \
-        uint64_t *out, char *err, size_t err_len) {                                        \
+        const char *variant, uint32_t id, float coarse_depth, float headroom,              \
+        const uint64_t *in, uint64_t *out, char *err, size_t err_len) {                    \
         std::string_view v(variant);                                                       \
         return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
             VARIANTS(NVDB_BRIDGE_NEXT)                                                     \
