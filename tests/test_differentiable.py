@@ -161,11 +161,15 @@ def test04_data_holds_active_values_in_documented_order(variant_llvm_ad_rgb, mak
 # ---------------------------------------------------------------------------
 
 def medium_scene(volume, integrator="prbvolpath", res=24, spp=16, scale=3.0, max_depth=6,
-                 albedo=0.7):
+                 albedo=0.7, medium=None, point_light=True):
+    """`volume` as heterogeneous's sigma_t in the unit cube (or `medium`,
+    another interior), lit by the sky and a point light"""
     integrator = {"type": integrator, "max_depth": max_depth}
+    if medium is None:
+        medium = {"type": "heterogeneous", "sigma_t": volume, "scale": scale, "albedo": albedo}
     if integrator["type"] in ("prbvolpathlocal", "volpathlocal"):
         integrator["max_majorant_ratio"] = 1.0  # (tracked, whatever the volume)
-    return mi.load_dict({
+    scene = {
         "type": "scene",
         "integrator": integrator,
         "sensor": {"type": "perspective", "fov": 40,
@@ -180,9 +184,11 @@ def medium_scene(volume, integrator="prbvolpath", res=24, spp=16, scale=3.0, max
         # volume's box: measured 0.62 against ray marching's 0.91)
         "cube": {"type": "cube", "bsdf": {"type": "null"},
                  "to_world": mi.ScalarTransform4f().translate(0.5).scale(0.5),
-                 "interior": {"type": "heterogeneous", "sigma_t": volume, "scale": scale,
-                              "albedo": albedo}},
-    })
+                 "interior": medium},
+    }
+    if not point_light:
+        del scene["light"]
+    return mi.load_dict(scene)
 
 
 def image_mean_gradient(volume, seed=7):

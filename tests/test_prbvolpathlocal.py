@@ -136,19 +136,7 @@ def scaled_medium_scene(kind, integrator, spp=32, res=12):
                   "albedo": 0.5,
                   "emission": {"type": "nanovdbvolume", "data": mi.TensorXf(e[..., None]),
                                "differentiable": True}}
-    return mi.load_dict({
-        "type": "scene",
-        "integrator": {"type": integrator, "max_depth": 6, "max_majorant_ratio": 1.0},
-        "sensor": {"type": "perspective", "fov": 40,
-                   "to_world": mi.ScalarTransform4f().look_at([0.7, 0.6, 2.1], [0.5, 0.5, 0.5],
-                                                               [0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": res, "height": res,
-                            "rfilter": {"type": "box"}, "pixel_format": "rgb"},
-                   "sampler": {"type": "independent", "sample_count": spp}},
-        "emitter": {"type": "constant"},
-        "cube": {"type": "cube", "bsdf": {"type": "null"},
-                 "to_world": mi.ScalarTransform4f().translate(0.5).scale(0.5),
-                 "interior": medium}})
+    return medium_scene(None, integrator, res=res, spp=spp, medium=medium, point_light=False)
 
 
 @pytest.mark.parametrize("kind", ["float", "constant", "vec3f", "albedo", "emission"])

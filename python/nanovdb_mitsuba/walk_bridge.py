@@ -83,9 +83,12 @@ class WalkBridge:
         return (ctypes.c_uint64 * len(idx))(*idx)
 
     def _call(self, fn, name, *args):
+        """fn's result (>= 0), or its message raised"""
         err = ctypes.create_string_buffer(512)
-        if fn(self.variant, *args, err, len(err)) != 0:
+        r = fn(self.variant, *args, err, len(err))
+        if r < 0:
             raise RuntimeError(f"nanovdb_mitsuba: {name}: {err.value.decode(errors='replace')}")
+        return r
 
     def _outputs(self, out, templates):
         """The outputs as arrays of the templates' types (borrowed, then the
@@ -97,11 +100,7 @@ class WalkBridge:
     def tracked(self, medium, max_ratio=1.0):
         """0: not tracked (the medium's own sample_interaction applies);
         1: tracked through local majorants; 2: tracked and emissive"""
-        err = ctypes.create_string_buffer(512)
-        r = self._tracked(self.variant, medium_index(medium), max_ratio, err, len(err))
-        if r < 0:
-            raise RuntimeError(f"nanovdb_mitsuba: tracked: {err.value.decode(errors='replace')}")
-        return r
+        return self._call(self._tracked, "tracked", medium_index(medium), max_ratio)
 
     def next_collision(self, medium_id, ray, tmax, u, active, coarse_depth=2.0, headroom=1.0):
         """The first tentative collision along `ray` up to tmax, its optical

@@ -37,7 +37,6 @@
 #include "tracking.h"
 
 #include <cstdio>
-#include <cstring>
 #include <exception>
 #include <string_view>
 
