@@ -66,6 +66,8 @@ def main():
     ap.add_argument("--integrator", default="prbvolpath", choices=["prbvolpath", "prbvolpathlocal"],
                     help="the differentiable integrator (prbvolpathlocal: through the tree's "
                          "local majorants, issue 36; with nanovdbvolume)")
+    ap.add_argument("--headroom", type=float, default=None,
+                    help="prbvolpathlocal's majorant_headroom (default: the integrator's)")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--build", default="", help="a build folder holding plugins/")
     ap.add_argument("--views", type=int, default=8)
@@ -91,6 +93,8 @@ def main():
     def scene_with(volume, integrator, spp):
         desc = turntable_scene(volume, a.res, spp, integrator)
         desc["integrator"]["max_depth"] = a.max_depth
+        if a.headroom is not None and integrator == "prbvolpathlocal":
+            desc["integrator"]["majorant_headroom"] = a.headroom
         for i in range(a.views, 8):
             del desc[f"sensor_{i}"]
         return mi.load_dict(desc)
@@ -218,7 +222,7 @@ def main():
 
     warm = [r["time_s"] for r in rows[min(a.views, len(rows) - 1):]] or [rows[-1]["time_s"]]
     summary = dict(
-        plugin=a.plugin, integrator=a.integrator, target=os.path.abspath(a.target), variant=a.variant,
+        plugin=a.plugin, integrator=a.integrator, headroom=a.headroom, target=os.path.abspath(a.target), variant=a.variant,
         filter=a.filter if a.plugin == "nanovdbvolume" else "trilinear",
         views=a.views, res=a.res, spp=a.spp, max_depth=a.max_depth, iters=a.iters, lr=a.lr,
         values=n_values, box_voxels=box_voxels, tree_and_table_bytes=tree_bytes,

@@ -180,20 +180,17 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
                 si[intersect] = scene.ray_intersect(ray, intersect)
 
                 needs_intersection &= ~active_medium
-                # prbvolpathlocal: the tracked lanes' tentative collision up
-                # to the surface, its coefficients attached, and what an
-                # emissive medium emits there
-                emitted = self.sample_tracked(mei, ray, dr.minimum(si.t, ray.maxt), u,
-                                              medium, tracked, with_emission=True)
+                # prbvolpathlocal: the tracked lanes' free flight, its null
+                # collisions (and an emissive medium's emission at every
+                # tentative collision) resolved and differentiated in one
+                # inner loop, up to the surface: mei becomes the real
+                # collision (attached coefficients) or none
+                if dr.hint(len(self.tracked) > 0, mode='scalar'):
+                    ray, si.t, throughput, L, flight = self.fly_tracked(
+                        ray, si.t, dr.minimum(si.t, ray.maxt), medium, tracked, sampler,
+                        channel, throughput, L, δL, is_primal)
+                    mei[tracked] = flight
                 mei.t[active_medium & (si.t < mei.t)] = dr.inf
-
-                # prbvolpathlocal: the emission at a tentative collision,
-                # real or null (before this collision's weight)
-                if dr.hint(self.emissive, mode='scalar'):
-                    contrib = throughput * emitted
-                    L[tracked] += dr.detach(contrib if is_primal else -contrib)
-                    if dr.hint(not is_primal and dr.grad_enabled(contrib), mode='scalar'):
-                        dr.backward(δL * contrib)
 
                 # Evaluate ratio of transmittance and free-flight PDF
                 # prbvolpathlocal: (the untracked lanes; a tracked lane's is
@@ -211,7 +208,7 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
                 # Handle null and real scatter events
                 if dr.hint(self.handle_null_scattering, mode='scalar'):
                     scatter_prob = dr.mean(mei.sigma_t / mei.combined_extinction)
-                    act_null_scatter = (sampler.next_1d(active_medium) >= scatter_prob) & active_medium
+                    act_null_scatter = (sampler.next_1d(active_medium & ~tracked) >= scatter_prob) & active_medium & ~tracked  # prbvolpathlocal
                     act_medium_scatter = ~act_null_scatter & active_medium
                     weight[act_null_scatter] *= mei.sigma_n / dr.detach(1 - scatter_prob)
                 else:
@@ -430,8 +427,7 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
             u = sampler.next_1d(active_medium)
             tracked = self.tracked_lanes(medium, active_medium)
             mei = medium.sample_interaction(ray, u, channel, active_medium & ~tracked)
-            self.sample_tracked(mei, ray, dr.minimum(si.t, ray.maxt), u, medium, tracked,
-                                with_emission=False)
+            self.sample_tracked(mei, ray, dr.minimum(si.t, ray.maxt), u, medium, tracked)
             mei.t[active_medium & (si.t < mei.t)] = dr.inf
             mei.t = dr.detach(mei.t)
 
@@ -493,38 +489,111 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
             lanes |= active & (medium == mi.MediumPtr(m))
         return lanes
 
-    def sample_tracked(self, mei, ray, tmax, u, medium, tracked, with_emission):
-        """Where `tracked`: mei becomes the first tentative collision along
-        the ray before tmax, its optical depth -log(1 - u) under the walk's
-        majorants (none: t infinite), with combined_extinction the majorant
-        there (detached) and the medium's coefficients (attached), sigma_n
-        against that majorant. Returns sigma_a Le / majorant there for an
-        emissive medium (with_emission; else 0)"""
+    def tentative(self, ray, tmax, u, medium, active):
+        """The first tentative collision along the ray before tmax of the
+        `active` lanes (in a tracked medium), its optical depth -log(1 - u)
+        under the walk's majorants times the headroom (see the class's doc):
+        its distance t (infinite where none) and that majorant (detached)"""
+        t, majorant = mi.Float(dr.inf), mi.Float(0.0)
+        for m, index, _ in self.tracked:
+            in_k = active & (medium == mi.MediumPtr(m))
+            t_k, majorant_k = self.bridge.next_collision(index, ray, tmax, u, in_k,
+                                                         self.coarse_depth, self.headroom)
+            t[in_k] = t_k
+            majorant[in_k] = majorant_k
+        return t, majorant
+
+    def interaction(self, ray, t, majorant, medium, hit, with_emission):
+        """The medium interaction at distance t along the ray where `hit`
+        (a tentative collision of a tracked medium; elsewhere t infinite),
+        combined_extinction the majorant there (detached), the medium's
+        coefficients attached and sigma_n against that majorant; and
+        sigma_a Le / majorant there for an emissive medium (with_emission;
+        else 0)"""
+        mei = dr.zeros(mi.MediumInteraction3f)
+        mei.t = dr.select(hit, t, dr.inf)
         emitted = mi.Spectrum(0.0)
         for m, index, emits in self.tracked:
-            in_k = tracked & (medium == mi.MediumPtr(m))
-            # (the walk's majorant times the headroom: see the class's doc)
-            t, majorant = self.bridge.next_collision(index, ray, tmax, u, in_k,
-                                                     self.coarse_depth, self.headroom)
-            hit = in_k & dr.isfinite(t)
+            in_k = hit & (medium == mi.MediumPtr(m))
             k = dr.zeros(mi.MediumInteraction3f)
             k.t = t
-            k.p = ray(dr.select(hit, t, 0.0))
+            k.p = ray(dr.select(in_k, t, 0.0))
             k.wi = -ray.d
             k.sh_frame = mi.Frame3f(k.wi)
             k.time = ray.time
             k.wavelengths = ray.wavelengths
             k.medium = mi.MediumPtr(m)
             k.combined_extinction = mi.UnpolarizedSpectrum(majorant)
-            sigma_s, _, sigma_t = m.get_scattering_coefficients(k, hit)
+            sigma_s, _, sigma_t = m.get_scattering_coefficients(k, in_k)
             k.sigma_s = sigma_s
             k.sigma_t = sigma_t
             k.sigma_n = k.combined_extinction - sigma_t
             if emits and with_emission:
-                le = self.bridge.eval_emission(index, k, hit)
-                emitted[hit] = (sigma_t - sigma_s) * le * dr.rcp(majorant)
+                le = self.bridge.eval_emission(index, k, in_k)
+                emitted[in_k] = (sigma_t - sigma_s) * le * dr.rcp(majorant)
             mei[in_k] = k
-        return emitted
+        return mei, emitted
+
+    def sample_tracked(self, mei, ray, tmax, u, medium, tracked):
+        """Where `tracked`: mei becomes the first tentative collision along
+        the ray before tmax (tentative(), interaction())"""
+        t, majorant = self.tentative(ray, tmax, u, medium, tracked)
+        k, _ = self.interaction(ray, t, majorant, medium, tracked & dr.isfinite(t), False)
+        mei[tracked] = k
+
+    @dr.syntax
+    def fly_tracked(self, ray, si_t, tmax, medium, tracked, sampler, channel, throughput, L, δL,
+                    is_primal):
+        """The free flight of the `tracked` lanes (delta tracking through
+        the walk) up to tmax, in one loop over its tentative collisions:
+        at each, an emissive medium's sigma_a Le / majorant is added to L
+        (backpropagated in the adjoint pass), then it is real with
+        probability mean(sigma_t / majorant), else null: a null collision's
+        weight sigma_n / (majorant (1 - that)) multiplies the throughput and
+        its derivative is backpropagated with the radiance still to come
+        (prbvolpath's estimator, one tentative collision per iteration of
+        its loop there). Returns the ray (from the last null collision),
+        si_t less the distance flown, throughput, L and the real collision's
+        interaction (attached; t infinite where the flight left the medium
+        or reached tmax). Untracked lanes pass through unchanged."""
+        ray = mi.Ray3f(ray)
+        si_t = mi.Float(si_t)
+        tmax = mi.Float(tmax)
+        throughput = mi.Spectrum(throughput)
+        L = mi.Spectrum(L)
+        t_real = mi.Float(dr.inf)
+        majorant_real = mi.Float(0.0)
+        flying = mi.Bool(tracked)
+        while dr.hint(flying, label="prbvolpathlocal: free flight"):
+            u = sampler.next_1d(flying)
+            t, majorant = self.tentative(ray, tmax, u, medium, flying)
+            hit = flying & dr.isfinite(t)
+            with dr.resume_grad(when=not is_primal):
+                k, emitted = self.interaction(ray, t, majorant, medium, hit, True)
+                if dr.hint(self.emissive, mode='scalar'):
+                    contrib = throughput * emitted
+                    L[hit] += dr.detach(contrib if is_primal else -contrib)
+                    if dr.hint(not is_primal and dr.grad_enabled(contrib), mode='scalar'):
+                        dr.backward(δL * contrib)
+                scatter_prob = dr.mean(k.sigma_t / k.combined_extinction)
+                null = hit & (sampler.next_1d(hit) >= scatter_prob)
+                weight = (dr.rcp(dr.detach(index_spectrum(k.combined_extinction, channel))) *
+                          k.sigma_n / dr.detach(1 - scatter_prob))
+                throughput[null] *= dr.detach(weight)
+                if dr.hint(not is_primal and dr.grad_enabled(weight), mode='scalar'):
+                    Lo = dr.detach(dr.select(null, L / dr.maximum(1e-8, weight), 0.0))
+                    dr.backward(δL * weight * Lo)
+            real = hit & ~null
+            t_real[real] = t
+            majorant_real[real] = majorant
+            ray.o[null] = dr.detach(k.p)
+            si_t[null] = si_t - t
+            tmax[null] = tmax - t
+            flying &= null
+        with dr.resume_grad(when=not is_primal):
+            mei, _ = self.interaction(ray, t_real, majorant_real, medium,
+                                      tracked & dr.isfinite(t_real), False)
+        return ray, si_t, throughput, L, mei
 
     def to_string(self):
         return f'PRBVolpathLocalIntegrator[max_depth = {self.max_depth}]'  # prbvolpathlocal: its name
