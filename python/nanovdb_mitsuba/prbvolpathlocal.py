@@ -58,9 +58,11 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
         self.coarse_depth = props.get("coarse_optical_depth", 2.0)
         self.max_ratio = props.get("max_majorant_ratio", 0.5)
         self.headroom = props.get("majorant_headroom", 2.0)
-        if not (self.headroom >= 1 and self.headroom < float("inf")):
-            raise ValueError(f"prbvolpathlocal: majorant_headroom must be a finite value >= 1, "
-                             f"got {self.headroom}")
+        self.transmittance_headroom = props.get("transmittance_headroom", 1.0)
+        for name, h in (("majorant_headroom", self.headroom),
+                        ("transmittance_headroom", self.transmittance_headroom)):
+            if not (h >= 1 and h < float("inf")):
+                raise ValueError(f"prbvolpathlocal: {name} must be a finite value >= 1, got {h}")
         if not (self.coarse_depth >= 0 and self.coarse_depth < float("inf")):
             raise ValueError("prbvolpathlocal: coarse_optical_depth must be a finite value "
                              f">= 0, got {self.coarse_depth}")
@@ -180,27 +182,26 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
                 si[intersect] = scene.ray_intersect(ray, intersect)
 
                 needs_intersection &= ~active_medium
-                # prbvolpathlocal: the tracked lanes' free flight, its null
-                # collisions (and an emissive medium's emission at every
-                # tentative collision) resolved and differentiated in one
-                # inner loop, up to the surface: mei becomes the real
-                # collision (attached coefficients) or none
+                # prbvolpathlocal: the tracked lanes' whole free flight up to
+                # the surface, in one call through the walk: its null
+                # collisions, an emissive medium's emission at every
+                # tentative collision and the real collision's weight, with
+                # their adjoints (fly_tracked); mei becomes the real
+                # collision (detached) or none
                 if dr.hint(len(self.tracked) > 0, mode='scalar'):
-                    ray, si.t, throughput, L, flight = self.fly_tracked(
-                        ray, si.t, dr.minimum(si.t, ray.maxt), medium, tracked, sampler,
-                        channel, throughput, L, δL, is_primal)
+                    throughput, L, flight = self.fly_tracked(
+                        ray, dr.minimum(si.t, ray.maxt), medium, tracked, sampler, throughput, L,
+                        δL, is_primal)
                     mei[tracked] = flight
                 mei.t[active_medium & (si.t < mei.t)] = dr.inf
 
                 # Evaluate ratio of transmittance and free-flight PDF
-                # prbvolpathlocal: (the untracked lanes; a tracked lane's is
-                # 1 / majorant at a tentative collision, 1 past the last:
-                # the weight's two lines)
+                # prbvolpathlocal: (the untracked lanes; a tracked lane's
+                # weights are in its throughput already, here and below)
                 tr, free_flight_pdf = medium.transmittance_eval_pdf(mei, si, active_medium & ~tracked)
                 tr_pdf = index_spectrum(free_flight_pdf, channel)
                 weight = mi.Spectrum(1.0)
                 weight[active_medium & ~tracked] *= dr.select(tr_pdf > 0.0, tr / dr.detach(tr_pdf), 0.0)  # prbvolpathlocal
-                weight[tracked & mei.is_valid()] *= dr.rcp(dr.detach(index_spectrum(mei.combined_extinction, channel)))  # prbvolpathlocal
 
                 escaped_medium = active_medium & ~mei.is_valid()
                 active_medium &= mei.is_valid()
@@ -225,7 +226,7 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
                     ray.o[act_null_scatter] = dr.detach(mei.p)
                     si.t[act_null_scatter] = si.t - dr.detach(mei.t)
 
-                weight[act_medium_scatter] *= mei.sigma_s / dr.detach(scatter_prob)
+                weight[act_medium_scatter & ~tracked] *= mei.sigma_s / dr.detach(scatter_prob)  # prbvolpathlocal
                 throughput *= dr.detach(weight)
 
                 mei = dr.detach(mei)
@@ -427,7 +428,14 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
             u = sampler.next_1d(active_medium)
             tracked = self.tracked_lanes(medium, active_medium)
             mei = medium.sample_interaction(ray, u, channel, active_medium & ~tracked)
-            self.sample_tracked(mei, ray, dr.minimum(si.t, ray.maxt), u, medium, tracked)
+            # prbvolpathlocal: a tracked lane's transmittance up to the
+            # surface in one call through the walk, with its adjoint
+            # (transmit_tracked); the lane then leaves the medium there
+            if dr.hint(len(self.tracked) > 0, mode='scalar'):
+                tr_tracked = self.transmit_tracked(
+                    ray, dr.minimum(si.t, ray.maxt), medium, tracked, sampler,
+                    None if is_primal else δL * adj_emitted, is_primal)
+                mei.t[tracked] = dr.inf
             mei.t[active_medium & (si.t < mei.t)] = dr.inf
             mei.t = dr.detach(mei.t)
 
@@ -440,6 +448,8 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
                 tr_multiplier[active_homogeneous] = medium.transmittance_eval_pdf(mei, si, active_homogeneous)[0]
                 mei.t[active_homogeneous] = dr.inf
 
+            if dr.hint(len(self.tracked) > 0, mode='scalar'):
+                tr_multiplier[tracked] = tr_tracked  # prbvolpathlocal
             escaped_medium = active_medium & ~mei.is_valid()
 
             # Ratio tracking transmittance computation
@@ -489,111 +499,65 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
             lanes |= active & (medium == mi.MediumPtr(m))
         return lanes
 
-    def tentative(self, ray, tmax, u, medium, active):
-        """The first tentative collision along the ray before tmax of the
-        `active` lanes (in a tracked medium), its optical depth -log(1 - u)
-        under the walk's majorants times the headroom (see the class's doc):
-        its distance t (infinite where none) and that majorant (detached)"""
-        t, majorant = mi.Float(dr.inf), mi.Float(0.0)
-        for m, index, _ in self.tracked:
-            in_k = active & (medium == mi.MediumPtr(m))
-            t_k, majorant_k = self.bridge.next_collision(index, ray, tmax, u, in_k,
-                                                         self.coarse_depth, self.headroom)
-            t[in_k] = t_k
-            majorant[in_k] = majorant_k
-        return t, majorant
+    def seed(self, sampler, active):
+        """PCG32's state for the bridge's walk of a lane (fly(),
+        transmit()), from two of the sampler's numbers (24 bits each), so
+        that the adjoint pass, whose sampler replays the primal pass's,
+        replays the walk"""
+        bits = dr.reinterpret_array(mi.UInt32, sampler.next_1d(active))
+        return bits ^ (dr.reinterpret_array(mi.UInt32, sampler.next_1d(active)) << 9)
 
-    def interaction(self, ray, t, majorant, medium, hit, with_emission):
-        """The medium interaction at distance t along the ray where `hit`
-        (a tentative collision of a tracked medium; elsewhere t infinite),
-        combined_extinction the majorant there (detached), the medium's
-        coefficients attached and sigma_n against that majorant; and
-        sigma_a Le / majorant there for an emissive medium (with_emission;
-        else 0)"""
+    def transmit_tracked(self, ray, tmax, medium, tracked, sampler, w, is_primal):
+        """The transmittance of the `tracked` lanes' shadow rays up to tmax:
+        differential ratio tracking through the walk, in one bridge call
+        (walk_bridge.cpp's transmit(): its tentative collisions at the
+        walk's majorants times transmittance_headroom, and in the adjoint
+        pass each factor's derivative backpropagated with weight w /
+        factor, w = dL x the contribution). 1 elsewhere"""
+        seed = self.seed(sampler, tracked)
+        w = mi.Spectrum(0.0) if w is None else w
+        tr = mi.Spectrum(1.0)
+        for m, index, _ in self.tracked:
+            in_k = tracked & (medium == mi.MediumPtr(m))
+            tr[in_k] = self.bridge.transmit(index, ray, tmax, seed, w, in_k, is_primal,
+                                            self.coarse_depth, self.transmittance_headroom)
+        return tr
+
+    def fly_tracked(self, ray, tmax, medium, tracked, sampler, throughput, L, δL, is_primal):
+        """The free flight of the `tracked` lanes up to tmax: differential
+        delta tracking through the walk, the whole flight in one bridge
+        call (walk_bridge.cpp's fly(): each tentative collision's emission,
+        the null collisions' weights and the real one's, with their
+        adjoints in the adjoint pass), its random numbers seeded from the
+        sampler. Returns the throughput and L after it, and the real
+        collision's interaction (detached; t infinite where the flight left
+        the medium or reached tmax). Untracked lanes pass through unchanged."""
+        seed = self.seed(sampler, tracked)
         mei = dr.zeros(mi.MediumInteraction3f)
-        mei.t = dr.select(hit, t, dr.inf)
-        emitted = mi.Spectrum(0.0)
-        for m, index, emits in self.tracked:
-            in_k = hit & (medium == mi.MediumPtr(m))
+        mei.t = mi.Float(dr.inf)
+        throughput, L = mi.Spectrum(throughput), mi.Spectrum(L)
+        for m, index, _ in self.tracked:
+            in_k = tracked & (medium == mi.MediumPtr(m))
+            t, majorant, sigma_s, sigma_t, throughput_k, L_k = self.bridge.fly(
+                index, ray, tmax, seed, throughput, L, δL, in_k, is_primal, self.coarse_depth,
+                self.headroom)
+            throughput[in_k] = throughput_k
+            L[in_k] = L_k
+            hit = in_k & dr.isfinite(t)
             k = dr.zeros(mi.MediumInteraction3f)
             k.t = t
-            k.p = ray(dr.select(in_k, t, 0.0))
+            k.p = ray(dr.select(hit, t, 0.0))
             k.wi = -ray.d
             k.sh_frame = mi.Frame3f(k.wi)
             k.time = ray.time
             k.wavelengths = ray.wavelengths
             k.medium = mi.MediumPtr(m)
             k.combined_extinction = mi.UnpolarizedSpectrum(majorant)
-            sigma_s, _, sigma_t = m.get_scattering_coefficients(k, in_k)
             k.sigma_s = sigma_s
             k.sigma_t = sigma_t
             k.sigma_n = k.combined_extinction - sigma_t
-            if emits and with_emission:
-                le = self.bridge.eval_emission(index, k, in_k)
-                emitted[in_k] = (sigma_t - sigma_s) * le * dr.rcp(majorant)
             mei[in_k] = k
-        return mei, emitted
-
-    def sample_tracked(self, mei, ray, tmax, u, medium, tracked):
-        """Where `tracked`: mei becomes the first tentative collision along
-        the ray before tmax (tentative(), interaction())"""
-        t, majorant = self.tentative(ray, tmax, u, medium, tracked)
-        k, _ = self.interaction(ray, t, majorant, medium, tracked & dr.isfinite(t), False)
-        mei[tracked] = k
-
-    @dr.syntax
-    def fly_tracked(self, ray, si_t, tmax, medium, tracked, sampler, channel, throughput, L, δL,
-                    is_primal):
-        """The free flight of the `tracked` lanes (delta tracking through
-        the walk) up to tmax, in one loop over its tentative collisions:
-        at each, an emissive medium's sigma_a Le / majorant is added to L
-        (backpropagated in the adjoint pass), then it is real with
-        probability mean(sigma_t / majorant), else null: a null collision's
-        weight sigma_n / (majorant (1 - that)) multiplies the throughput and
-        its derivative is backpropagated with the radiance still to come
-        (prbvolpath's estimator, one tentative collision per iteration of
-        its loop there). Returns the ray (from the last null collision),
-        si_t less the distance flown, throughput, L and the real collision's
-        interaction (attached; t infinite where the flight left the medium
-        or reached tmax). Untracked lanes pass through unchanged."""
-        ray = mi.Ray3f(ray)
-        si_t = mi.Float(si_t)
-        tmax = mi.Float(tmax)
-        throughput = mi.Spectrum(throughput)
-        L = mi.Spectrum(L)
-        t_real = mi.Float(dr.inf)
-        majorant_real = mi.Float(0.0)
-        flying = mi.Bool(tracked)
-        while dr.hint(flying, label="prbvolpathlocal: free flight"):
-            u = sampler.next_1d(flying)
-            t, majorant = self.tentative(ray, tmax, u, medium, flying)
-            hit = flying & dr.isfinite(t)
-            with dr.resume_grad(when=not is_primal):
-                k, emitted = self.interaction(ray, t, majorant, medium, hit, True)
-                if dr.hint(self.emissive, mode='scalar'):
-                    contrib = throughput * emitted
-                    L[hit] += dr.detach(contrib if is_primal else -contrib)
-                    if dr.hint(not is_primal and dr.grad_enabled(contrib), mode='scalar'):
-                        dr.backward(δL * contrib)
-                scatter_prob = dr.mean(k.sigma_t / k.combined_extinction)
-                null = hit & (sampler.next_1d(hit) >= scatter_prob)
-                weight = (dr.rcp(dr.detach(index_spectrum(k.combined_extinction, channel))) *
-                          k.sigma_n / dr.detach(1 - scatter_prob))
-                throughput[null] *= dr.detach(weight)
-                if dr.hint(not is_primal and dr.grad_enabled(weight), mode='scalar'):
-                    Lo = dr.detach(dr.select(null, L / dr.maximum(1e-8, weight), 0.0))
-                    dr.backward(δL * weight * Lo)
-            real = hit & ~null
-            t_real[real] = t
-            majorant_real[real] = majorant
-            ray.o[null] = dr.detach(k.p)
-            si_t[null] = si_t - t
-            tmax[null] = tmax - t
-            flying &= null
-        with dr.resume_grad(when=not is_primal):
-            mei, _ = self.interaction(ray, t_real, majorant_real, medium,
-                                      tracked & dr.isfinite(t_real), False)
-        return ray, si_t, throughput, L, mei
+        return throughput, L, mei
 
     def to_string(self):
         return f'PRBVolpathLocalIntegrator[max_depth = {self.max_depth}]'  # prbvolpathlocal: its name

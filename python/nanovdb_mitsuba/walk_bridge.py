@@ -6,6 +6,8 @@ index and so record into the caller's kernels, its symbolic loops included.
     bridge = WalkBridge.for_variant()          # the current variant's
     bridge.tracked(medium)                     # 0, 1 or 2 (tracked, emits)
     t, majorant = bridge.next_collision(medium, ray, tmax, u, active)
+    t, majorant, sigma_s, sigma_t, throughput, L = bridge.fly(medium, ray, tmax, seed,
+                                                              throughput, L, dL, active, primal)
     le = bridge.eval_emission(medium, mei, active)
 """
 import ctypes
@@ -38,6 +40,12 @@ def medium_index(medium):
     return int(dr.reinterpret_array(mi.UInt32, mi.MediumPtr(medium))[0])
 
 
+def _spectrum(channels):
+    """An UnpolarizedSpectrum of its channels (Floats)"""
+    return mi.UnpolarizedSpectrum(*channels) if len(channels) > 1 else \
+        mi.UnpolarizedSpectrum(channels[0])
+
+
 class WalkBridge:
     """The C functions of one variant's backend"""
 
@@ -64,6 +72,12 @@ class WalkBridge:
         self._next.argtypes = [ctypes.c_char_p, ctypes.c_uint32, ctypes.c_float, ctypes.c_float,
                                ctypes.POINTER(ctypes.c_uint64), ctypes.POINTER(ctypes.c_uint64),
                                ctypes.c_char_p, ctypes.c_size_t]
+        self._fly = getattr(lib, f"nvdb_walk_fly_{backend}")
+        self._fly.argtypes = [ctypes.c_char_p, ctypes.c_uint32, ctypes.c_float, ctypes.c_float,
+                              ctypes.c_int, ctypes.POINTER(ctypes.c_uint64),
+                              ctypes.POINTER(ctypes.c_uint64), ctypes.c_char_p, ctypes.c_size_t]
+        self._transmit = getattr(lib, f"nvdb_walk_transmit_{backend}")
+        self._transmit.argtypes = self._fly.argtypes
         self._emission = getattr(lib, f"nvdb_walk_eval_emission_{backend}")
         self._emission.argtypes = [ctypes.c_char_p, ctypes.c_uint32,
                                    ctypes.POINTER(ctypes.c_uint64),
@@ -71,7 +85,7 @@ class WalkBridge:
                                    ctypes.c_size_t]
         self._release = getattr(lib, f"nvdb_walk_release_{backend}")
         self._release.argtypes = [ctypes.POINTER(ctypes.c_uint64), ctypes.c_size_t]
-        for f in (self._tracked, self._next, self._emission):
+        for f in (self._tracked, self._next, self._fly, self._transmit, self._emission):
             f.restype = ctypes.c_int
         self._release.restype = None
 
@@ -112,6 +126,44 @@ class WalkBridge:
         out = (ctypes.c_uint64 * 2)()
         self._call(self._next, "next_collision", medium_id, coarse_depth, headroom, inp, out)
         return self._outputs(out, (mi.Float(), mi.Float()))
+
+    def fly(self, medium_id, ray, tmax, seed, throughput, L, δL, active, primal,
+            coarse_depth=2.0, headroom=1.0):
+        """A path's free flight through the medium up to tmax: differential
+        delta tracking through the walk (walk_bridge.cpp's fly() says what
+        it adds to L, and backpropagates in the adjoint pass), its random
+        numbers from PCG32 seeded with `seed` (UInt32, per lane). Returns
+        (t, majorant, sigma_s, sigma_t, throughput, L) detached, t infinite
+        where there is no real collision before tmax"""
+        n = dr.size_v(mi.UnpolarizedSpectrum)
+        v = self._walk(self._fly, "fly", medium_id, ray, tmax, seed, (throughput, L, δL), active,
+                       primal, coarse_depth, headroom, 2 + 4 * n)
+        return (v[0], v[1]) + tuple(_spectrum(v[2 + n * i: 2 + n * (i + 1)]) for i in range(4))
+
+    def transmit(self, medium_id, ray, tmax, seed, w, active, primal, coarse_depth=2.0,
+                 headroom=1.0):
+        """A shadow ray's transmittance through the medium up to tmax:
+        differential ratio tracking through the walk (walk_bridge.cpp's
+        transmit(): in the adjoint pass each factor's derivative is
+        backpropagated with weight w / factor), seeded as fly(). Returns it
+        (detached)"""
+        n = dr.size_v(mi.UnpolarizedSpectrum)
+        return _spectrum(self._walk(self._transmit, "transmit", medium_id, ray, tmax, seed, (w,),
+                                    active, primal, coarse_depth, headroom, n))
+
+    def _walk(self, fn, name, medium_id, ray, tmax, seed, spectra, active, primal, coarse_depth,
+              headroom, n_out):
+        """fly()'s and transmit()'s call: their inputs in walk_bridge.cpp's
+        order (Inputs), n_out Floats back"""
+        values = [mi.Point3f(ray.o), mi.Vector3f(ray.d), mi.Float(ray.time)]
+        if mi.is_spectral:
+            values.append(ray.wavelengths)
+        values += [mi.Float(tmax), mi.UInt32(seed)]
+        values += [mi.UnpolarizedSpectrum(dr.detach(v)) for v in spectra] + [mi.Bool(active)]
+        inp = self._indices(values)
+        out = (ctypes.c_uint64 * n_out)()
+        self._call(fn, name, medium_id, coarse_depth, headroom, int(bool(primal)), inp, out)
+        return self._outputs(out, tuple(mi.Float() for _ in range(n_out)))
 
     def eval_emission(self, medium_id, mei, active):
         """The medium's emitted radiance Le at mei.p (before sigma_a),

@@ -194,20 +194,13 @@ template <typename Float, typename Spectrum> struct Tracking {
         return { k.scale * r, k.scale * w.control };
     }
 
-    /// A flight over [mint, maxt] with a fresh tau, and its loop bounds
-    /// (residual: its walk gives the controls)
-    static Flight begin_flight(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
-                               const Float &maxt, Sampler *sampler, const Mask &active,
-                               bool residual, const Float *extra = nullptr) {
-        return begin_flight(k, wr, mint, maxt, -dr::log(1.f - sampler->next_1d(active)), active,
-                            residual, extra);
-    }
-
-    /// The same with a given tau (the optical depth to the first tentative
-    /// collision: walk_bridge.cpp's, drawn by its caller)
+    /// A flight over [mint, maxt], tau the optical depth to its first
+    /// tentative collision, and its loop bounds (residual: its walk gives
+    /// the controls)
     static Flight begin_flight(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
                                const Float &maxt, const Float &tau, const Mask &active,
-                               bool residual, const Float *extra = nullptr) {
+                               bool residual, const Float *extra = nullptr,
+                               float rate_factor = 1.f) {
         Flight f;
         f.alive = active;
         f.searching = false;
@@ -228,7 +221,8 @@ template <typename Float, typename Spectrum> struct Tracking {
         // majorant's optical depth over the range (a residual rate is at most
         // the majorant, as 0 <= L <= c <= M); T + 10 sqrt(T) + 64 is
         // exceeded with probability below 1e-20
-        Float T = (k.max_majorant + f.extra) * len;
+        // (rate_factor: sample_t_maj's, every rate times it)
+        Float T = (k.max_majorant * rate_factor + f.extra) * len;
         f.max_collisions = to_bound(T + 10.f * dr::sqrt(T) + 64.f);
         return f;
     }
@@ -273,6 +267,14 @@ template <typename Float, typename Spectrum> struct Tracking {
             "volpathlocal: walk to the next collision");
     }
 
+    /// A uniform number from the flight's random source: a Mitsuba
+    /// sampler, or any DRJIT_STRUCT with next_1d(mask) (walk_bridge.cpp's
+    /// PCG32, whose state a Python integrator's sampler seeds)
+    static Float draw(Sampler *sampler, const Mask &active) { return sampler->next_1d(active); }
+    template <typename Source> static Float draw(Source &source, const Mask &active) {
+        return source.next_1d(active);
+    }
+
     /**
      * pbrt-v4's SampleT_maj over the walk: the tentative collisions along
      * `ray` in medium k up to tmax. At each, collide(state, flight, mu, c,
@@ -281,34 +283,41 @@ template <typename Float, typename Spectrum> struct Tracking {
      * `residual` its residual's bound and control) updates the estimator's state and
      * returns the lanes that go on; those draw a new tau. `loop` names the
      * estimator's loop (its bound). Returns the flight, ended: its walk ran
-     * out, or collide stopped it.
+     * out, or collide stopped it. `sampler`: a Sampler *, or another random
+     * source (draw()). `rate_factor` (>= 1; walk_bridge.cpp's headroom)
+     * multiplies every rate: tau is drawn against the walk's rate times
+     * it, and collide gets mu times it.
      */
-    template <typename State, typename Collide>
+    template <typename State, typename Collide, typename Source = Sampler *>
     static Flight sample_t_maj(const TrackedMedium &k, const WalkRay &wr, const Float &mint,
-                               const Float &maxt, Sampler *sampler, State &state,
+                               const Float &maxt, Source sampler, State &state,
                                LoopBound loop, const Mask &active, Collide &&collide,
                                const char *label, bool residual = false,
-                               const Float *extra = nullptr) {
+                               const Float *extra = nullptr, float rate_factor = 1.f) {
         struct Loop {
             Flight flight;
             State state;
-            Sampler *sampler;
+            Source sampler;
             DRJIT_STRUCT(Loop, flight, state, sampler)
-        } ls = { begin_flight(k, wr, mint, maxt, sampler, active, residual, extra), state,
-                 sampler };
+        } ls = { begin_flight(k, wr, mint, maxt,
+                              -dr::log(1.f - draw(sampler, active)) / rate_factor, active,
+                              residual, extra, rate_factor),
+                 state, sampler };
         const bool with_extra = extra != nullptr;
         dr::tie(ls) = dr::while_loop(
             dr::make_tuple(ls), [](const Loop &ls) { return ls.flight.alive; },
-            [k, wr, loop, collide, residual, with_extra](Loop &ls) {
+            [k, wr, loop, collide, residual, with_extra, rate_factor](Loop &ls) {
                 next_collision(k, wr, ls.flight, residual, with_extra);
                 Mask hit = ls.flight.alive;
                 if (dr::none_or<false>(hit))
                     return; // (scalar: the walk ended)
                 auto [mu, c] = rate(k, ls.flight.walk, residual,
                                     with_extra ? &ls.flight.extra : nullptr);
+                if (rate_factor != 1.f)
+                    mu *= rate_factor;
                 Mask more = collide(ls.state, ls.flight, mu, c, ls.sampler, hit);
                 dr::masked(ls.flight.tau, hit && more) =
-                    -dr::log(1.f - ls.sampler->next_1d(hit && more));
+                    -dr::log(1.f - draw(ls.sampler, hit && more)) / rate_factor;
                 ls.flight.alive &= !(hit && !more);
                 // The loop bound: past it the flight ends here, as if the
                 // walk had ended

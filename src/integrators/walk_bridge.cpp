@@ -117,6 +117,197 @@ template <typename Float, typename Spectrum> struct Bridge {
         out[1] = majorant.release();
     }
 
+    /// The random source of fly() and transmit(): PCG32, seeded per lane by the caller's
+    /// sampler (so the adjoint pass, whose sampler replays the primal
+    /// one's, replays the flight)
+    struct Rng {
+        dr::PCG32<UInt32> pcg;
+        Float next_1d(const Mask &active) { return pcg.next_float32(active); }
+        DRJIT_STRUCT(Rng, pcg)
+    };
+
+    /// The inputs fly() and transmit() share: the medium, the ray (o xyz,
+    /// d xyz, time, [wavelengths]), tmax and the PCG32 seed; then, in
+    /// order, the caller's spectra (a channel each) and the active mask
+    struct Inputs {
+        TrackedMedium k;
+        Ray3f ray;
+        Float tmax;
+        Rng rng;
+        const uint64_t *idx;
+        size_t n = 0;
+
+        Inputs(uint32_t id, const uint64_t *idx_) : idx(idx_) {
+            if (!track(id, 1.f, k, true))
+                Throw("the medium is not tracked through local majorants");
+            // (one at a time: the order of a call's arguments is unspecified)
+            for (size_t c = 0; c < 3; ++c)
+                ray.o[c] = next();
+            for (size_t c = 0; c < 3; ++c)
+                ray.d[c] = next();
+            ray.time = next();
+            if constexpr (is_spectral_v<Spectrum>)
+                for (size_t c = 0; c < dr::size_v<Wavelength>; ++c)
+                    ray.wavelengths[c] = next();
+            tmax = next();
+            rng.pcg.seed(UInt64(dr::detach(UInt32::borrow(idx[n++]))),
+                         UInt64(0xda3e39cb94b95bdbULL));
+        }
+        Float next() { return in(idx[n++]); }
+        UnpolarizedSpectrum spectrum() {
+            UnpolarizedSpectrum v;
+            for (size_t c = 0; c < dr::size_v<UnpolarizedSpectrum>; ++c)
+                v[c] = next();
+            return v;
+        }
+        Mask mask() { return Mask::borrow(idx[n++]); }
+    };
+
+    /// Releases a spectrum's channels into out[o..]
+    static void put(const UnpolarizedSpectrum &v, uint64_t *out, size_t &o) {
+        for (size_t c = 0; c < dr::size_v<UnpolarizedSpectrum>; ++c)
+            out[o++] = Float(v[c]).release();
+    }
+
+    /**
+     * prbvolpathlocal's free flight of a path through the tracked medium
+     * (its `fly_tracked`): prbvolpath's differential delta tracking, its
+     * tentative collisions at the walk's majorants times `headroom`, in
+     * one walk (tracking.h's sample_t_maj), from the ray's origin up to
+     * tmax. At each tentative collision at t, with mu the rate there:
+     *  - an emissive medium's sigma_a Le / mu times the throughput is
+     *    added to L (primal) or taken from it (adjoint), and in the
+     *    adjoint pass backpropagated with weight dL;
+     *  - with probability P = mean(sigma_t) / mu (detached) the collision
+     *    is real, its weight sigma_s / (mu P), else null, its weight
+     *    (mu - sigma_t) / (mu (1 - P)) (the coefficients attached). The
+     *    throughput takes the weight's value; in the adjoint pass its
+     *    derivative is backpropagated with the radiance still to come,
+     *    dL x weight x detach(L / weight) (prbvolpath's rule, one
+     *    tentative collision per loop iteration there). The flight stops
+     *    at the real collision.
+     * The medium's lookups are its own (get_scattering_coefficients; a
+     * stochastic filter's voxel comes from the position), as the
+     * integrator's elsewhere. Which pass: `primal`; the AD scope is the
+     * caller's.
+     *
+     * in: o xyz, d xyz, time, [wavelengths], tmax, seed (UInt32: PCG32's
+     * state, one per lane), throughput, L, dL (a channel each), active.
+     * out: t (infinity: no real collision before tmax), the majorant
+     * there (mu), sigma_s, sigma_t (detached), throughput, L.
+     */
+    static void fly(uint32_t id, float coarse_depth, float headroom, bool primal,
+                    const uint64_t *idx, uint64_t *out) {
+        Inputs a(id, idx);
+        UnpolarizedSpectrum throughput = a.spectrum(), L = a.spectrum(), dL = a.spectrum();
+        Mask active = a.mask();
+        TrackedMedium &k = a.k;
+        const Ray3f &ray = a.ray;
+        auto [mint, maxt, wr] = Tracker::span(k, ray, a.tmax, dr::opaque<Float>(coarse_depth),
+                                              active);
+        Rng rng = a.rng;
+        struct State {
+            UnpolarizedSpectrum throughput, L, sigma_s, sigma_t;
+            Float majorant;
+            Mask real;
+            DRJIT_STRUCT(State, throughput, L, sigma_s, sigma_t, majorant, real)
+        } st = { throughput, L, dr::zeros<UnpolarizedSpectrum>(), dr::zeros<UnpolarizedSpectrum>(),
+                 Float(0.f), Mask(false) };
+        Flight f = Tracker::sample_t_maj(
+            k, wr, mint, maxt, rng, st, DeltaLoop, active,
+            [k, ray, mint, dL, primal](State &s, const Flight &f_, const Float &mu,
+                                       const Float & /* c */, Rng &rng_, const Mask &hit) {
+                MediumInteraction3f mei = Tracker::interaction_at(k, ray, f_.t, mint);
+                auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(mei, hit);
+                DRJIT_MARK_USED(sigma_n);
+                if (k.emissive) { // (traced only for an emissive medium)
+                    UnpolarizedSpectrum contrib = dr::select(
+                        hit, s.throughput * (sigma_t - sigma_s) *
+                                 k.emissive->eval_emission(mei, hit) / mu, 0.f);
+                    s.L += dr::detach(primal ? contrib : -contrib);
+                    if (!primal && dr::grad_enabled(contrib)) {
+                        UnpolarizedSpectrum g = dL * contrib;
+                        dr::backward_from(g);
+                    }
+                }
+                Float xi = rng_.next_1d(hit),
+                      p_real = dr::mean(dr::detach(sigma_t)) / mu;
+                Mask real = hit && (xi < p_real);
+                // (the branch not taken must not divide by 0: its
+                // adjoint would be 0 x Inf)
+                Float p_safe = dr::maximum(p_real, 1e-30f),
+                      q_safe = dr::maximum(1.f - p_real, 1e-30f);
+                UnpolarizedSpectrum weight = dr::select(
+                    hit, dr::select(real, sigma_s / (mu * p_safe),
+                                    (mu - sigma_t) / (mu * q_safe)), 1.f);
+                if (!primal && dr::grad_enabled(weight)) {
+                    UnpolarizedSpectrum g =
+                        dL * weight *
+                        dr::detach(dr::select(hit, s.L / dr::maximum(1e-8f, weight), 0.f));
+                    dr::backward_from(g);
+                }
+                s.throughput *= dr::detach(weight);
+                dr::masked(s.sigma_s, real) = dr::detach(sigma_s);
+                dr::masked(s.sigma_t, real) = dr::detach(sigma_t);
+                dr::masked(s.majorant, real) = mu;
+                s.real |= real;
+                return !real;
+            },
+            "prbvolpathlocal: free flight", false, nullptr, headroom);
+        Float t = dr::select(st.real, f.t, dr::Infinity<Float>);
+        out[0] = t.release();
+        out[1] = st.majorant.release();
+        size_t o = 2;
+        for (UnpolarizedSpectrum *v : { &st.sigma_s, &st.sigma_t, &st.throughput, &st.L })
+            put(*v, out, o);
+    }
+
+    /**
+     * prbvolpathlocal's transmittance of a shadow ray through the tracked
+     * medium (its sample_emitter): prbvolpath's differential ratio
+     * tracking, its tentative collisions at the walk's majorants times
+     * `headroom`, in one walk from the ray's origin up to tmax. Each
+     * tentative collision multiplies the estimate by f = 1 - sigma_t / mu
+     * (per channel, sigma_t attached); in the adjoint pass f's derivative
+     * is backpropagated with weight detach(w / f), w the caller's dL x the
+     * contribution this transmittance is a factor of (prbvolpath's rule).
+     * The walk stops where the estimate is 0 in every channel.
+     *
+     * in: o xyz, d xyz, time, [wavelengths], tmax, seed, w (a channel
+     * each), active. out: the estimate (detached; 1 where inactive).
+     */
+    static void transmit(uint32_t id, float coarse_depth, float headroom, bool primal,
+                         const uint64_t *idx, uint64_t *out) {
+        Inputs a(id, idx);
+        UnpolarizedSpectrum w = a.spectrum();
+        Mask active = a.mask();
+        TrackedMedium &k = a.k;
+        const Ray3f &ray = a.ray;
+        auto [mint, maxt, wr] = Tracker::span(k, ray, a.tmax, dr::opaque<Float>(coarse_depth),
+                                              active);
+        UnpolarizedSpectrum tr(1.f);
+        Tracker::sample_t_maj(
+            k, wr, mint, maxt, a.rng, tr, RatioLoop, active,
+            [k, ray, mint, w, primal](UnpolarizedSpectrum &tr_, const Flight &f_, const Float &mu,
+                                      const Float & /* c */, Rng &, const Mask &hit) {
+                MediumInteraction3f mei = Tracker::interaction_at(k, ray, f_.t, mint);
+                auto [sigma_s, sigma_n, sigma_t] = k.medium->get_scattering_coefficients(mei, hit);
+                DRJIT_MARK_USED(sigma_s);
+                DRJIT_MARK_USED(sigma_n);
+                UnpolarizedSpectrum f = dr::select(hit, 1.f - sigma_t / mu, 1.f);
+                if (!primal && dr::grad_enabled(f)) {
+                    UnpolarizedSpectrum g =
+                        f * dr::detach(dr::select(hit && (f > 0.f), w / f, 0.f));
+                    dr::backward_from(g);
+                }
+                tr_ *= dr::detach(f);
+                return dr::any(tr_ != 0.f);
+            },
+            "prbvolpathlocal: ratio tracking", false, nullptr, headroom);
+        size_t o = 0;
+        put(tr, out, o);
+    }
+
     /// The emitted radiance Le of an emissive medium at points (in: p xyz,
     /// time, the wavelengths, active), out: its channels, attached to the
     /// emission grid (their gradients reach its values)
@@ -197,6 +388,13 @@ NAMESPACE_END(mitsuba)
 #define NVDB_BRIDGE_NEXT(name, F, S)                                                      \
     NVDB_BRIDGE_DISPATCH(name, F, S, B::next_collision(id, coarse_depth, headroom, in, out); \
                          return 0)
+#define NVDB_BRIDGE_FLY(name, F, S)                                                       \
+    NVDB_BRIDGE_DISPATCH(name, F, S, B::fly(id, coarse_depth, headroom, primal != 0, in, out); \
+                         return 0)
+#define NVDB_BRIDGE_TRANSMIT(name, F, S)                                                  \
+    NVDB_BRIDGE_DISPATCH(name, F, S,                                                      \
+                         B::transmit(id, coarse_depth, headroom, primal != 0, in, out);   \
+                         return 0)
 #define NVDB_BRIDGE_EMISSION(name, F, S)                                                  \
     NVDB_BRIDGE_DISPATCH(name, F, S, B::eval_emission(id, in, out); return 0)
 
@@ -216,6 +414,24 @@ NAMESPACE_END(mitsuba)
         std::string_view v(variant);                                                       \
         return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
             VARIANTS(NVDB_BRIDGE_NEXT)                                                     \
+            return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
+        });                                                                                \
+    }                                                                                      \
+    extern "C" MI_EXPORT int nvdb_walk_fly_##suffix(                                       \
+        const char *variant, uint32_t id, float coarse_depth, float headroom, int primal,  \
+        const uint64_t *in, uint64_t *out, char *err, size_t err_len) {                    \
+        std::string_view v(variant);                                                       \
+        return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
+            VARIANTS(NVDB_BRIDGE_FLY)                                                      \
+            return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
+        });                                                                                \
+    }                                                                                      \
+    extern "C" MI_EXPORT int nvdb_walk_transmit_##suffix(                                  \
+        const char *variant, uint32_t id, float coarse_depth, float headroom, int primal,  \
+        const uint64_t *in, uint64_t *out, char *err, size_t err_len) {                    \
+        std::string_view v(variant);                                                       \
+        return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
+            VARIANTS(NVDB_BRIDGE_TRANSMIT)                                                 \
             return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
         });                                                                                \
     }                                                                                      \
