@@ -280,3 +280,28 @@ def test07_update_with_bad_values_follows_the_policy(ad_rgb, policy):
     params.update()
     assert np.all(np.isfinite(image))
     np.testing.assert_array_equal(image, np.array(mi.render(scene, params, seed=3)))
+
+
+def test08_non_differentiable_volume_names_the_parameter(ad_rgb, make_grid):
+    """A nanovdbvolume loaded without differentiable=true has no `data`
+    parameter: asking for it (to read, or to set from an optimizer) raises a
+    KeyError that names the key, the volume's file and the fix
+    (nanovdb_mitsuba/params.py); other missing keys keep Mitsuba's error"""
+    path, _ = make_grid("lower_tiles")
+    scene = medium_scene({"type": "nanovdbvolume", "filename": path}, "prbvolpathlocal",
+                         res=8, spp=1)
+    params = mi.traverse(scene)
+    key = "cube.interior_medium.sigma_t.data"
+    assert key.replace(".data", ".grid_type") in params
+    for access in (lambda: params[key], lambda: params.__setitem__(key, mi.Float(1.0))):
+        with pytest.raises(KeyError) as e:
+            access()
+        message = str(e.value)
+        assert key in message and path in message and "differentiable=true" in message
+        assert "\"differentiable\": True" in message
+    with pytest.raises(KeyError) as e:
+        params["cube.interior_medium.sigma_t.no_such_key"]
+    assert "differentiable" not in str(e.value)
+    # loaded with differentiable=true, the same key is the values
+    scene = medium_scene(ball_volume(), "prbvolpathlocal", res=8, spp=1)
+    assert dr.width(mi.traverse(scene)[key]) > 0

@@ -14,7 +14,9 @@ later inherit it). That directory is:
 - the installed package itself (pip install .: nanovdb_mitsuba/plugins/);
 - otherwise, run from a clone (PYTHONPATH=python), the clone's build/.
 
-Also here: volume_facts() and integrator_facts() (facts.py: what a loaded
+A nanovdbvolume's values asked for from mi.traverse() where they are no
+parameter (loaded without differentiable=true) raise a KeyError that says
+so (params.py). Also here: volume_facts() and integrator_facts() (facts.py: what a loaded
 plugin is, through mi.traverse), framed_scene() (scene.py: a volume framed
 and lit, as a scene dict), nanovdb-render (render.py) and the vdb2nvdb
 console script (tools.py).
@@ -55,6 +57,8 @@ def setup(mi=None):
     if len(resolver) == 0 or str(resolver[0]) != d:
         resolver.prepend(d)
     _register_python_integrators(mi)
+    from . import params
+    params.install(mi)
     return d
 
 
