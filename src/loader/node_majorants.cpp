@@ -235,13 +235,88 @@ private:
 
     /// Raises (Max) or lowers m to the ring of the cell of `level` (0: 8^3,
     /// 1: 128^3, 2: 4096^3) whose first voxel is `o`: the layers of its 26
-    /// neighbours that touch it
-    template <bool Max = true> void ring(int level, const int32_t o[3], float &m) {
+    /// neighbours that touch it. `parent` (0: unknown): the node of level + 1
+    /// that holds the cell; a neighbour in it is its entry there (what
+    /// find() would reach from the root, without the search: most
+    /// neighbours are, and the rebuild after an update (index_updates.h)
+    /// runs this for every entry of every node)
+    template <bool Max = true>
+    void ring(int level, const int32_t o[3], float &m, uint64_t parent = 0) {
         const uint32_t log2dim = level == 0 ? 3 : level == 1 ? 7 : 12;
+        const uint32_t outside = ~((1u << (level == 0 ? 7 : 12)) - 1u); // (the parent's span)
         for_each_neighbour(o, log2dim, false, [&](const int32_t n[3], const Layer sel[3]) {
+            if (parent != 0 && level < 2 &&
+                ((uint32_t(n[0]) ^ uint32_t(o[0])) & outside) == 0 &&
+                ((uint32_t(n[1]) ^ uint32_t(o[1])) & outside) == 0 &&
+                ((uint32_t(n[2]) ^ uint32_t(o[2])) & outside) == 0) {
+                const uint32_t e = m_view.entry_of(level + 1, n);
+                const Cover c = m_view.child_bit(level + 1, parent, e)
+                    ? Cover{ level, m_view.child(level + 1, parent, e), 0.f }
+                    : Cover{ -1, 0, bound_at(m_view.entry(level + 1, parent, e)) };
+                layer_extreme<Max>(c, sel, m);
+                return;
+            }
             layer_extreme<Max>(find(level, n), sel, m);
         });
     }
+
+    /// A node's tile entries and what their in-node neighbours hold, so that
+    /// the ring of a tile whose 26 neighbours are tiles of the same node (most
+    /// of a sparse tree's entries) is a lookup, not 26 (the rebuild after an
+    /// update, index_updates.h, runs this for every entry of every node).
+    /// Exactly what ring() computes there: a tile's layer is its value, and
+    /// NaN never counts.
+    struct NodeTiles {
+        uint32_t dim = 0;                ///< entries per axis (16, 32)
+        std::vector<float> hi, lo;       ///< max / min of the 3^3 tile values around
+        std::vector<uint8_t> slow;       ///< on the node's face, or beside a child
+        std::vector<float> raw_hi, raw_lo, tmp;
+
+        bool fast(uint32_t e) const { return !slow[e]; }
+
+        template <bool Max> void filter(std::vector<float> &v) {
+            // separable 3-wide max (min) per axis, clamped to the node
+            const uint32_t d = dim, strides[3] = { d * d, d, 1 };
+            for (uint32_t stride : strides) {
+                tmp = v;
+                for (uint32_t e = 0; e < d * d * d; ++e) {
+                    const uint32_t c = (e / stride) % d;
+                    if (c > 0)
+                        extend<Max>(v[e], tmp[e - stride]);
+                    if (c + 1 < d)
+                        extend<Max>(v[e], tmp[e + stride]);
+                }
+            }
+        }
+
+        void build(const Builder &b, int level, uint64_t node) {
+            dim = level == 1 ? 16u : 32u;
+            const uint32_t count = dim * dim * dim;
+            raw_hi.assign(count, kNone);
+            raw_lo.assign(count, std::numeric_limits<float>::infinity());
+            std::vector<float> child(count, 0.f);
+            for (uint32_t e = 0; e < count; ++e) {
+                if (b.m_view.child_bit(level, node, e)) {
+                    child[e] = 1.f;
+                    continue;
+                }
+                const float v = b.bound_at(b.m_view.entry(level, node, e));
+                raise(raw_hi[e], v);
+                lower_to(raw_lo[e], v);
+            }
+            hi = raw_hi;
+            lo = raw_lo;
+            filter<true>(hi);
+            filter<false>(lo);
+            filter<true>(child); // (dilated: beside a child)
+            slow.assign(count, 0);
+            for (uint32_t e = 0; e < count; ++e) {
+                const uint32_t i = e / (dim * dim), j = (e / dim) % dim, k = e % dim;
+                slow[e] = child[e] > 0.f || i == 0 || j == 0 || k == 0 || i + 1 == dim ||
+                          j + 1 == dim || k + 1 == dim;
+            }
+        }
+    };
 
     /// The mean of a leaf's 512 values (NaN as 0)
     double leaf_mean(uint64_t leaf) const {
@@ -260,6 +335,8 @@ private:
     float upper(uint64_t node, const int32_t o[3]) {
         float M = kNone, R = kNone;
         Control control;
+        NodeTiles &tiles = m_tiles[1];
+        tiles.build(*this, 2, node);
         for (uint32_t n = 0; n < layout::UPPER_TABLE_COUNT; ++n) {
             int32_t eo[3];
             m_view.entry_origin(2, o, n, eo);
@@ -271,12 +348,15 @@ private:
             }
             const float v = start(bound_at(m_view.entry(2, node, n)));
             float r = v;
-            ring(1, eo, r);
+            if (tiles.fast(n))
+                raise(r, tiles.hi[n]);
+            else
+                ring(1, eo, r, node);
             raise(M, r);
             // (an index grid's walk cannot read a tile's value, only R)
             if (r > v || m_codec.indexed())
                 raise(R, r);
-            add(control, tile_control(1, eo, v), layout::UPPER_TABLE_COUNT);
+            add(control, tile_control(1, eo, v, node, n), layout::UPPER_TABLE_COUNT);
         }
         const size_t i = index(2, node);
         const uint32_t slot = m_out.layout.upper_slot + nanovdb_drjit::UPPER_SLOTS * uint32_t(i);
@@ -286,14 +366,19 @@ private:
         return M;
     }
 
-    /// A tile of value v (start()ed) whose cell at `level` starts at o: its
-    /// control (the value; the smallest of it and its ring)
-    Control tile_control(int level, const int32_t o[3], float v) {
+    /// A tile of value v (start()ed) whose cell at `level` starts at o
+    /// (entry e of node `parent`, whose NodeTiles m_tiles[level] holds): its control
+    /// (the value; the smallest of it and its ring)
+    Control tile_control(int level, const int32_t o[3], float v, uint64_t parent, uint32_t e) {
         Control c;
         c.mean = std::isfinite(v) ? v : 0.0;
         c.lo = std::isnan(v) || v == kNone ? std::numeric_limits<float>::infinity() : v;
-        if (c.lo > 0.f) // (a lower bound is >= 0: the ring cannot matter)
-            ring<false>(level, o, c.lo);
+        if (c.lo > 0.f) { // (a lower bound is >= 0: the ring cannot matter)
+            if (m_tiles[level].fast(e))
+                lower_to(c.lo, m_tiles[level].lo[e]);
+            else
+                ring<false>(level, o, c.lo, parent);
+        }
         return c;
     }
 
@@ -313,6 +398,8 @@ private:
         float brick[nanovdb_drjit::LOWER_BRICK_COUNT], brick_lo[nanovdb_drjit::LOWER_BRICK_COUNT];
         std::fill(std::begin(brick), std::end(brick), kNone);
         std::fill(std::begin(brick_lo), std::end(brick_lo), std::numeric_limits<float>::infinity());
+        NodeTiles &tiles = m_tiles[0];
+        tiles.build(*this, 1, node);
         for (uint32_t n = 0; n < layout::LOWER_TABLE_COUNT; ++n) {
             int32_t eo[3];
             m_view.entry_origin(1, o, n, eo);
@@ -322,18 +409,21 @@ private:
                 const size_t i = index(0, leaf);
                 r = m_grid.leaf_max()[i];
                 lo = m_grid.leaf_min()[i];
-                ring(0, eo, r);
+                ring(0, eo, r, node);
                 raise(m_out.values[m_out.layout.leaf_slot(uint32_t(leaf / 4))], r);
                 m_entry_control[n] = { m_grid.leaf_max()[i] > 0.f ? leaf_mean(leaf) : 0.0, lo };
                 if (lo > 0.f) // (a lower bound is >= 0: the ring cannot matter)
-                    ring<false>(0, eo, m_entry_control[n].lo);
+                    ring<false>(0, eo, m_entry_control[n].lo, node);
             } else {
                 const float v = start(bound_at(m_view.entry(1, node, n)));
                 r = lo = v;
-                ring(0, eo, r);
+                if (tiles.fast(n))
+                    raise(r, tiles.hi[n]);
+                else
+                    ring(0, eo, r, node);
                 if (r > v)
                     raise(R, r);
-                m_entry_control[n] = tile_control(0, eo, v);
+                m_entry_control[n] = tile_control(0, eo, v, node, n);
             }
             raise(M, r);
             const uint32_t b = nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
@@ -440,6 +530,7 @@ private:
     std::vector<float> m_lower_min, m_lower_max, m_upper_min, m_upper_max; ///< no ring
     std::vector<float> m_entry = std::vector<float>(nanovdb_drjit::LOWER_ENTRY_COUNT); ///< lower(): its entries' bounds
     std::vector<Control> m_entry_control = std::vector<Control>(nanovdb_drjit::LOWER_ENTRY_COUNT); ///< ... and controls
+    NodeTiles m_tiles[2]; ///< the lower node lower() is at, the upper node upper() is at
     NodeMajorants m_out;
 };
 

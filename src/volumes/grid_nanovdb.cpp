@@ -352,6 +352,8 @@ public:
         }
         if (p.count_lookups)
             m_sampler.enable_counters();
+        if (m_load.index.active()) // (what an update that changes nothing keeps)
+            m_load.index.remember(m_sampler, m_load.facts.max, m_load.facts.max3);
         Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
             m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
             m_load.facts.grid_bytes, max());

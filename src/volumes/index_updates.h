@@ -62,6 +62,13 @@ template <typename Float> struct IndexUpdates {
     std::array<float, 3> background{};                   ///< index 0's value (per channel)
     float max_value_given = 0.f;                         ///< max_value, kept after updates
     bool stale = false;                                  ///< values changed since rebound()
+    /// The JIT variable of the values last bounded (held by the sampler
+    /// since, so no other variable has its index), and their bounds: an
+    /// update that hands back the same variable (dr.enable_grad() alone
+    /// gives it a new AD index, and Mitsuba then calls parameters_changed)
+    /// changes nothing, and bounds nothing again
+    uint32_t bounded_index = 0;
+    IndexBounds bounded;
 
     bool active() const { return tree_bytes != 0; }
 
@@ -76,11 +83,29 @@ template <typename Float> struct IndexUpdates {
             return (const uint8_t *) s.grid.get();
     }
 
+    /// The JIT index of the sampler's values (0: not a JIT array)
+    static uint32_t values_index(const Sampler &s) {
+        if constexpr (drjit::is_jit_v<Float>)
+            return drjit::detach(s.index_values).index();
+        else
+            return 0;
+    }
+
+    /// Records the values as bounded, with their max() (the load's)
+    void remember(const Sampler &s, float max, const float max3[3]) {
+        bounded_index = values_index(s);
+        bounded.max = max;
+        for (int k = 0; k < 3; ++k)
+            bounded.max3[k] = max3[k];
+    }
+
     /// The values changed: the value policy and max() on the backend (see
     /// above); sets the sampler's bounds and returns them. `filename`: for
-    /// errors
+    /// errors. The same variable as last time (see bounded_index): nothing
     IndexBounds values_changed(Sampler &s, const std::string &filename) {
         namespace dr = drjit;
+        if (bounded_index != 0 && values_index(s) == bounded_index)
+            return bounded;
         auto &values = s.index_values;
         const uint32_t channels = s.index_channels;
         float largest[3] = { background[0], background[1], background[2] };
@@ -144,6 +169,7 @@ template <typename Float> struct IndexUpdates {
             b.max3[k] = std::max(largest[k], max_value_given);
         s.set_bounds(b.max, b.max3);
         stale = true;
+        remember(s, b.max, b.max3);
         return b;
     }
 
