@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """The plugin reference: docs/plugins/*.md, generated from the plugins' doc blocks.
 
-Each plugin source opens with a `/**! ... */` block in the form Mitsuba's
+Each plugin source opens with a `/**! ... */` block (a Python plugin: its
+class's docstring, as Mitsuba's own Python integrators have it) in the form Mitsuba's
 `docs/generate_plugin_doc.py` reads (RST: a `.. pluginparameters::` table,
 `|int|`-style markers, `:math:`, `.. tabs::` examples). Mitsuba turns such
 blocks into RST for Sphinx; here they become Markdown that a code host
@@ -18,6 +19,7 @@ from a page without notice. Standard library only.
 """
 import argparse
 import re
+import textwrap
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +32,7 @@ PLUGINS = [
     ("nanovdbvolume", "volume", "src/volumes/grid_nanovdb.cpp"),
     ("volpathlocal", "integrator", "src/integrators/volpathlocal.cpp"),
     ("emissiveheterogeneous", "medium", "src/media/emissiveheterogeneous.cpp"),
+    ("prbvolpathlocal", "integrator", "python/nanovdb_mitsuba/prbvolpathlocal.py"),
 ]
 
 # Mitsuba's substitution markers (its docs/src/... `rst_prolog`), as Markdown
@@ -80,7 +83,14 @@ class Block:
 
 
 def extract_block(text, source):
-    """The text between `/**!` and the `*/` that closes it."""
+    """The text between `/**!` and the `*/` that closes it; in a Python
+    source (a Python plugin, as Mitsuba's own prbvolpath), the first
+    docstring (r\"\"\") that opens with a `.. _label:`, dedented."""
+    if source.endswith(".py"):
+        m = re.search(r'r"""\n(\s*\.\. _[\w-]+:.*?)"""', text, re.S)
+        if not m:
+            raise DocError(f"{source}: no docstring that opens with a .. _label:")
+        return textwrap.dedent(m.group(1))
     start = text.find("/**!")
     if start < 0:
         raise DocError(f"{source}: no /**! doc block")

@@ -56,6 +56,11 @@ BASE_CLASS_READS = {
     "emissiveheterogeneous": {
         "sample_emitters": "Medium's constructor reads it (Base(props))",
     },
+    "prbvolpathlocal": {
+        "max_depth": "RBIntegrator's constructor reads it (super().__init__(props))",
+        "rr_depth": "RBIntegrator's constructor reads it (super().__init__(props))",
+        "hide_emitters": "RBIntegrator's constructor reads it (super().__init__(props))",
+    },
 }
 # Reads whose property name is not a string literal: (file name, the call)
 # -> why the names are covered anyway
@@ -152,9 +157,25 @@ def property_reads(text, label="<text>"):
     return reads, other
 
 
+PY_READ = re.compile(r"""\bprops\s*(?:\.\s*(?:get|has_property)\s*\(\s*|\[\s*)(["'])(\w+)\1""")
+
+
+def python_reads(text, label="<text>"):
+    """{name: [where]} for `props.get("name"...)`, `props.has_property(...)`
+    and `props["name"]` in a Python plugin"""
+    reads = {}
+    for m in PY_READ.finditer(text):
+        line = text.count("\n", 0, m.start()) + 1
+        reads.setdefault(m.group(2), []).append(f"{label}:{line} (props)")
+    return reads
+
+
 def plugin_reads(name):
     reads, other = {}, []
-    for path in project_files(PLUGINS[name][1]):
+    source = PLUGINS[name][1]
+    if source.endswith(".py"):  # a Python plugin: its own file
+        return python_reads((ROOT / source).read_text(), source.rsplit("/", 1)[-1]), []
+    for path in project_files(source):
         r, o = property_reads(path.read_text(), path.name)
         for k, v in r.items():
             reads.setdefault(k, []).extend(v)
@@ -339,6 +360,11 @@ BASE_VALUES = {"to_world": "transform", "max_depth": 3, "rr_depth": 2,
                                        for p in ps])
 def test06_base_class_rows_are_read_by_mitsuba(variant_scalar_rgb, name, prop):
     import mitsuba as mi
+    if PLUGINS[name][1].endswith(".py"):  # (Python plugins: *_ad_* variants only)
+        from conftest import _setup_variant
+        _setup_variant("llvm_ad_rgb")
+        import nanovdb_mitsuba
+        nanovdb_mitsuba.setup()
     value = BASE_VALUES[prop]
     if value == "transform":
         value = mi.ScalarTransform4f().scale(2.0)
@@ -370,6 +396,13 @@ def test07_parser_finds_reads():
     assert sorted(reads) == ["alpha", "beta", "delta", "epsilon", "gamma", "zeta"]
     assert reads["delta"] == ["demo.cpp:8 (other.type)"]
     assert other == [("demo.cpp", "props.type(n)", 11)]
+    py = """
+        self.a = props.get("alpha", 2.0)
+        if props.has_property('beta'):
+            self.g = props["gamma"]
+        # (a call on something else) other.get("delta")
+    """
+    assert sorted(python_reads(py, "demo.py")) == ["alpha", "beta", "gamma"]
 
 
 def _examples(name):

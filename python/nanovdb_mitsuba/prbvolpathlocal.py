@@ -18,23 +18,72 @@ def index_spectrum(spec, idx):
 # prbvolpathlocal: its own name and documentation
 class PRBVolpathLocalIntegrator(RBIntegrator):
     r"""
+    .. _integrator-prbvolpathlocal:
+
     Path Replay Backpropagation through local majorants (:monosp:`prbvolpathlocal`)
+    -------------------------------------------------------------------------------
+
+    .. pluginparameters::
+
+     * - max_depth
+       - |int|
+       - Specifies the longest path depth in the generated output image (where -1
+         corresponds to :math:`\infty`). A value of 1 will only render directly
+         visible light sources. 2 will lead to single-bounce (direct-only)
+         illumination, and so on. (Default: 6)
+
+     * - rr_depth
+       - |int|
+       - Specifies the path depth, at which the implementation will begin to use
+         the *russian roulette* path termination criterion. For example, if set to
+         1, then path generation many randomly cease after encountering directly
+         visible surfaces. (Default: 5)
+
+     * - hide_emitters
+       - |bool|
+       - Hide directly visible emitters. (Default: no, i.e. |false|)
+
+     * - max_majorant_ratio
+       - |float|
+       - As ``volpathlocal``'s: a ``nanovdbvolume`` medium is tracked through
+         its local majorants only if they average at most this fraction of
+         its global majorant; above it, it takes ``prbvolpath``'s path.
+         (Default: 0.5)
+
+     * - coarse_optical_depth
+       - |float|
+       - As ``volpathlocal``'s: internal nodes whose majorant gives at most
+         this optical depth along any chord are crossed as one segment.
+         (Default: 2)
+
+     * - majorant_headroom
+       - |float|
+       - Free flights use the walk's majorants times this factor (at least
+         1). Differential delta tracking learns a value's derivative from
+         the null collisions, with weight :math:`1/\mu_n`: where the
+         density reaches its majorant (:math:`\mu_n = 0`, a node of one
+         value, as in a volume that starts constant) no null collision
+         happens and the derivative is lost, and near it the weights'
+         variance is large. ``prbvolpath`` has this at its one global
+         maximum (hence the advice to give ``max_value`` headroom); local
+         majorants reach every node's maximum, so the headroom is built in:
+         at 2, at least half the tentative collisions are null. 1 is the
+         tight walk. (Default: 2)
+
+     * - transmittance_headroom
+       - |float|
+       - The same factor for shadow rays (at least 1). Ratio tracking's
+         derivative weighs each tentative collision by
+         :math:`1/\bar\mu`, not :math:`1/\mu_n`, so the tight walk keeps it
+         (a factor of exactly 0 would end the walk and lose it; the walk's
+         bounds sit :math:`2^{-20}` above the values); a larger factor
+         lowers the derivative's variance at the price of more lookups.
+         (Default: 1)
 
     Mitsuba 3.9.1's ``prbvolpath`` (``python/ad/integrators/prbvolpath.py``,
     BSD-3-Clause), its structure, names and comments, with each difference
-    marked ``# prbvolpathlocal:``. Parameters: ``prbvolpath``'s
-    (``max_depth``, ``rr_depth``, ``hide_emitters``), and
-    ``coarse_optical_depth`` and ``max_majorant_ratio`` as ``volpathlocal``'s,
-    and ``majorant_headroom`` (default 2): the walk's majorants are used
-    times this factor. Differential delta tracking learns a value's
-    derivative from the null collisions, with weight :math:`1/\mu_n`; where
-    the density reaches its majorant (:math:`\mu_n = 0`: a node of one
-    value, e.g. a volume that starts constant) no null collision happens
-    and the derivative is lost, and near it the weights' variance is large.
-    ``prbvolpath`` has this at its one global maximum (hence the advice to
-    give ``max_value`` headroom); local majorants reach every node's
-    maximum, so the headroom is built in: at least half the tentative
-    collisions are null. 1 is the tight walk.
+    marked ``# prbvolpathlocal:``. Registered in every ``*_ad_*`` variant
+    (except the polarized ones) once ``nanovdb_mitsuba`` is imported.
 
     A medium that ``volpathlocal`` tracks (``heterogeneous`` or
     ``emissiveheterogeneous`` over a ``nanovdbvolume``) is tracked here
@@ -47,10 +96,27 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
     :math:`\mu_n / \mu_n` and real collision's :math:`\mu_s / \mu_t`
     attached, the majorant detached) and differential ratio tracking for
     shadow rays. An emissive medium adds :math:`\sigma_a L_e / \bar\mu`
-    at every tentative collision (pbrt-v4's estimator, volpathlocal's
-    ``collisions``), attached to its emission grid. Every other medium takes
-    ``prbvolpath``'s path. Needs an ``*_ad_*`` variant.
-    """
+    at every tentative collision (pbrt-v4's estimator, ``volpathlocal``'s
+    ``collisions``), attached to its emission grid. A free flight and a
+    shadow ray's transmittance are each one call and one walk, their
+    adjoints backpropagated inside it (``prbvolpath`` spends a loop
+    iteration per tentative collision); their random numbers come from a
+    PCG32 that the path's sampler seeds, so the adjoint pass replays them.
+    Every other medium takes ``prbvolpath``'s path. Sensors inside media
+    are not supported, as in ``prbvolpath``. Guide: docs/differentiable.md.
+
+    .. tabs::
+        .. code-tab:: xml
+
+            <integrator type="prbvolpathlocal">
+                <integer name="max_depth" value="8"/>
+            </integrator>
+
+        .. code-tab:: python
+
+            'type': 'prbvolpathlocal',
+            'max_depth': 8
+        """
     def __init__(self, props):
         super().__init__(props)
         # prbvolpathlocal: the walk's settings (volpathlocal's) and the
