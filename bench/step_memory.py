@@ -4,11 +4,12 @@ own: the largest volume that optimizes on this machine (issue 20).
     python3 bench/step_memory.py --volume cf.nvdb [--build build] [--variant llvm_ad_rgb]
     python3 bench/step_memory.py --volume cf.vol              (gridvolume)
     python3 bench/step_memory.py --sweep A.nvdb B.vol ... --out bench/results/optimize
+    python3 bench/step_memory.py --integrator prbvolpathlocal --sweep A.nvdb ... --out DIR
 
 One run loads the volume (nanovdbvolume with differentiable=true for a
 .nvdb, gridvolume for a .vol), sets up bench/optimize.py's problem at its
-smallest (one view of the benchmark scene, 32 x 32 at 4 spp, prbvolpath,
-Adam on the values) and takes two steps: render, loss against a constant
+smallest (one view of the benchmark scene, 32 x 32 at 4 spp, prbvolpath
+or --integrator prbvolpathlocal, Adam on the values) and takes two steps: render, loss against a constant
 image, backward, Adam step, params.update(). It prints one JSON line: the
 values optimized, the process's peak RSS (ru_maxrss: loading and the steps
 together, what the machine must hold) and its RSS after loading, and the
@@ -59,7 +60,7 @@ def measure(spec):
     else:
         volume = mi.load_dict({"type": "nanovdbvolume", "filename": path,
                                "differentiable": True})
-    desc = turntable_scene(volume, 32, 4, "prbvolpath")
+    desc = turntable_scene(volume, 32, 4, spec.get("integrator", "prbvolpath"))
     desc["integrator"]["max_depth"] = 4
     for i in range(1, 8):
         desc.pop(f"sensor_{i}", None)
@@ -84,7 +85,7 @@ def measure(spec):
         params.update(optimizer)
         dr.eval()
         step_s = time.perf_counter() - t
-    return dict(volume=os.path.abspath(path),
+    return dict(volume=os.path.abspath(path), integrator=spec.get("integrator", "prbvolpath"),
                 plugin="gridvolume" if path.endswith(".vol") else "nanovdbvolume",
                 values=int(values), file_bytes=os.path.getsize(path),
                 rss_start=rss0, rss_loaded=rss_loaded, peak_rss=peak_rss(),
@@ -98,7 +99,8 @@ def sweep(a):
         t = time.perf_counter()
         try:
             row = harness.run_child("step_memory:measure", dict(
-                volume=os.path.abspath(path), variant=a.variant, build=a.build),
+                volume=os.path.abspath(path), variant=a.variant, build=a.build,
+                integrator=a.integrator),
                 stop_rss_gb=a.stop_gb)
         except harness.ChildFailed as e:
             rows.append(dict(volume=os.path.abspath(path), failed=True, returncode=e.returncode,
@@ -158,6 +160,8 @@ def main():
     ap.add_argument("--volume", help="one run: a .nvdb (nanovdbvolume) or .vol (gridvolume)")
     ap.add_argument("--sweep", nargs="+", help="volumes, each run in a child process")
     ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--integrator", default="prbvolpath", choices=["prbvolpath", "prbvolpathlocal"],
+                    help="the differentiable integrator of the step")
     ap.add_argument("--build", default="", help="a build folder holding plugins/")
     ap.add_argument("--memory-gb", type=float, default=24.0)
     ap.add_argument("--stop-gb", type=float, default=21.0,
@@ -167,7 +171,8 @@ def main():
     if a.sweep:
         sweep(a)
     elif a.volume:  # (in this process)
-        print(json.dumps(measure(dict(volume=a.volume, variant=a.variant, build=a.build))))
+        print(json.dumps(measure(dict(volume=a.volume, variant=a.variant, build=a.build,
+                                      integrator=a.integrator))))
     else:
         ap.error("give --volume or --sweep")
 

@@ -8,7 +8,7 @@ index and so record into the caller's kernels, its symbolic loops included.
     t, majorant = bridge.next_collision(medium, ray, tmax, u, active)
     t, majorant, sigma_s, sigma_t, throughput, L = bridge.fly(medium, ray, tmax, seed,
                                                               throughput, L, dL, active, primal)
-    le = bridge.eval_emission(medium, mei, active)
+    tr = bridge.transmit(medium, ray, tmax, seed, w, active, primal)
 """
 import ctypes
 import os
@@ -78,14 +78,9 @@ class WalkBridge:
                               ctypes.POINTER(ctypes.c_uint64), ctypes.c_char_p, ctypes.c_size_t]
         self._transmit = getattr(lib, f"nvdb_walk_transmit_{backend}")
         self._transmit.argtypes = self._fly.argtypes
-        self._emission = getattr(lib, f"nvdb_walk_eval_emission_{backend}")
-        self._emission.argtypes = [ctypes.c_char_p, ctypes.c_uint32,
-                                   ctypes.POINTER(ctypes.c_uint64),
-                                   ctypes.POINTER(ctypes.c_uint64), ctypes.c_char_p,
-                                   ctypes.c_size_t]
         self._release = getattr(lib, f"nvdb_walk_release_{backend}")
         self._release.argtypes = [ctypes.POINTER(ctypes.c_uint64), ctypes.c_size_t]
-        for f in (self._tracked, self._next, self._fly, self._transmit, self._emission):
+        for f in (self._tracked, self._next, self._fly, self._transmit):
             f.restype = ctypes.c_int
         self._release.restype = None
 
@@ -164,17 +159,3 @@ class WalkBridge:
         out = (ctypes.c_uint64 * n_out)()
         self._call(fn, name, medium_id, coarse_depth, headroom, int(bool(primal)), inp, out)
         return self._outputs(out, tuple(mi.Float() for _ in range(n_out)))
-
-    def eval_emission(self, medium_id, mei, active):
-        """The medium's emitted radiance Le at mei.p (before sigma_a),
-        attached to its emission grid"""
-        values = [mi.Point3f(mei.p), mi.Float(mei.time)]
-        if mi.is_spectral:
-            values.append(mei.wavelengths)
-        values.append(mi.Bool(active))
-        inp = self._indices(values)
-        n = dr.size_v(mi.UnpolarizedSpectrum)
-        out = (ctypes.c_uint64 * n)()
-        self._call(self._emission, "eval_emission", medium_id, inp, out)
-        channels = self._outputs(out, tuple(mi.Float() for _ in range(n)))
-        return mi.UnpolarizedSpectrum(*channels) if n > 1 else mi.UnpolarizedSpectrum(channels[0])

@@ -5,16 +5,19 @@
     Mitsuba writes its differentiable integrators in Python; ours
     (prbvolpathlocal, a marked copy of prbvolpath) tracks through the same
     local majorants as volpathlocal, through these C functions and the same
-    code (tracking.h: span, begin_flight, next_collision; tracked_media.h:
-    which media are tracked). They are C functions loaded with ctypes, as
+    code (tracking.h: span, sample_t_maj; tracked_media.h: which media are
+    tracked): fly() (a path's free flight) and transmit() (a shadow ray's
+    transmittance), each one walk with its adjoint inside; next_collision()
+    (one tentative collision: the tests' probe of the walk's majorants).
+    They are C functions loaded with ctypes, as
     src/python/grid_list.cpp is (it says why not an extension module), and
     take and return Dr.Jit variables by index (drjit.detail.collect_indices
     / update_indices: the AD index in the upper 32 bits, the JIT index in
     the lower), so they run inside the caller's symbolic loops and record
-    into its kernels. The walk's results are sampling quantities (a
-    tentative collision and its majorant): they come back detached.
-    eval_emission is the exception: its result carries the emission grid's
-    gradients.
+    into its kernels. What comes back is detached: the walk's results are
+    sampling quantities (a tentative collision and its majorant), and
+    fly() and transmit() backpropagate their estimators' derivatives
+    themselves, in the caller's AD scope (the adjoint pass).
 
     Every function takes the variant's name (Mitsuba's, e.g. "llvm_ad_rgb")
     and a medium's registry index (a MediumPtr's value). One set per JIT
@@ -307,27 +310,6 @@ template <typename Float, typename Spectrum> struct Bridge {
         size_t o = 0;
         put(tr, out, o);
     }
-
-    /// The emitted radiance Le of an emissive medium at points (in: p xyz,
-    /// time, the wavelengths, active), out: its channels, attached to the
-    /// emission grid (their gradients reach its values)
-    static void eval_emission(uint32_t id, const uint64_t *idx, uint64_t *out) {
-        TrackedMedium k;
-        if (!track(id, 1.f, k, true) || !k.emissive)
-            Throw("the medium does not emit");
-        MediumInteraction3f mei = dr::zeros<MediumInteraction3f>();
-        mei.p = Point3f(in(idx[0]), in(idx[1]), in(idx[2]));
-        mei.time = in(idx[3]);
-        size_t n = 4;
-        if constexpr (is_spectral_v<Spectrum>)
-            for (size_t c = 0; c < dr::size_v<Wavelength>; ++c)
-                mei.wavelengths[c] = in(idx[n++]);
-        mei.medium = MediumPtr(k.medium);
-        Mask active = Mask::borrow(idx[n]);
-        UnpolarizedSpectrum le = k.emissive->eval_emission(mei, active);
-        for (size_t c = 0; c < dr::size_v<UnpolarizedSpectrum>; ++c)
-            out[c] = UnpolarizedSpectrum(le)[c].release();
-    }
 };
 
 template <typename Fn> int guarded(char *err, size_t err_len, Fn &&fn) {
@@ -395,8 +377,6 @@ NAMESPACE_END(mitsuba)
     NVDB_BRIDGE_DISPATCH(name, F, S,                                                      \
                          B::transmit(id, coarse_depth, headroom, primal != 0, in, out);   \
                          return 0)
-#define NVDB_BRIDGE_EMISSION(name, F, S)                                                  \
-    NVDB_BRIDGE_DISPATCH(name, F, S, B::eval_emission(id, in, out); return 0)
 
 #define NVDB_BRIDGE_FUNCTIONS(suffix, VARIANTS)                                            \
     extern "C" MI_EXPORT int nvdb_walk_tracked_##suffix(const char *variant, uint32_t id,  \
@@ -432,15 +412,6 @@ NAMESPACE_END(mitsuba)
         std::string_view v(variant);                                                       \
         return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
             VARIANTS(NVDB_BRIDGE_TRANSMIT)                                                 \
-            return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
-        });                                                                                \
-    }                                                                                      \
-    extern "C" MI_EXPORT int nvdb_walk_eval_emission_##suffix(                             \
-        const char *variant, uint32_t id, const uint64_t *in, uint64_t *out, char *err,    \
-        size_t err_len) {                                                                  \
-        std::string_view v(variant);                                                       \
-        return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
-            VARIANTS(NVDB_BRIDGE_EMISSION)                                                 \
             return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
         });                                                                                \
     }                                                                                      \
