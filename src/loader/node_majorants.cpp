@@ -17,10 +17,12 @@
 #include "value_codec.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <iterator>
 #include <cmath>
 #include <limits>
+#include <thread>
 #include <tuple>
 #include <utility>
 
@@ -99,6 +101,7 @@ public:
 
     NodeMajorants run() {
         unringed_bounds();
+        lower_nodes();
         for (uint32_t t : m_view.tiles()) { // a tile lookups never reach keeps -Inf
             int32_t o[3];
             m_view.tile_origin(t, o);
@@ -118,6 +121,47 @@ public:
     }
 
 private:
+    /// Every lower node that lookups reach, bounded first and in parallel
+    /// (each writes only its own slots and its leaves'), its M and control
+    /// kept for upper(): the same table as one thread computes, bit for bit
+    void lower_nodes() {
+        struct Job {
+            uint64_t node;
+            int32_t o[3];
+        };
+        std::vector<Job> jobs;
+        for (uint32_t t : m_view.tiles()) {
+            const uint64_t upper_node = m_view.tile_child(t);
+            if (upper_node == 0)
+                continue;
+            int32_t o[3];
+            m_view.tile_origin(t, o);
+            for (uint32_t n = 0; n < layout::UPPER_TABLE_COUNT; ++n)
+                if (m_view.child_bit(2, upper_node, n)) {
+                    Job j{ m_view.child(2, upper_node, n), {} };
+                    m_view.entry_origin(2, o, n, j.o);
+                    jobs.push_back(j);
+                }
+        }
+        m_lower.assign(size_t(m_view.node_count(1)), {});
+        std::atomic<size_t> next{ 0 };
+        auto work = [&]() {
+            Scratch scratch;
+            for (size_t i; (i = next.fetch_add(1)) < jobs.size();)
+                m_lower[index(1, jobs[i].node)] = lower(jobs[i].node, jobs[i].o, scratch);
+        };
+        // (threads only where there is enough to share: 16 lower nodes
+        // are 64 K entries)
+        const size_t threads = std::min<size_t>(
+            std::clamp(std::thread::hardware_concurrency(), 1u, 16u), jobs.size() / 16 + 1);
+        std::vector<std::thread> pool;
+        for (size_t k = 1; k < threads; ++k)
+            pool.emplace_back(work);
+        work();
+        for (std::thread &th : pool)
+            th.join();
+    }
+
     /// The bound of the tile value at byte `at`
     float bound_at(uint64_t at) const { return m_codec.tile_bound(m_buf + at); }
 
@@ -241,7 +285,7 @@ private:
     /// neighbours are, and the rebuild after an update (index_updates.h)
     /// runs this for every entry of every node)
     template <bool Max = true>
-    void ring(int level, const int32_t o[3], float &m, uint64_t parent = 0) {
+    void ring(int level, const int32_t o[3], float &m, uint64_t parent = 0) const {
         const uint32_t log2dim = level == 0 ? 3 : level == 1 ? 7 : 12;
         const uint32_t outside = ~((1u << (level == 0 ? 7 : 12)) - 1u); // (the parent's span)
         for_each_neighbour(o, log2dim, false, [&](const int32_t n[3], const Layer sel[3]) {
@@ -318,6 +362,14 @@ private:
         }
     };
 
+    /// What lower() needs of its own: its entries' bounds and controls, and
+    /// its node's tiles (one per thread)
+    struct Scratch {
+        std::vector<float> entry = std::vector<float>(nanovdb_drjit::LOWER_ENTRY_COUNT);
+        std::vector<Control> entry_control = std::vector<Control>(nanovdb_drjit::LOWER_ENTRY_COUNT);
+        NodeTiles tiles;
+    };
+
     /// The mean of a leaf's 512 values (NaN as 0)
     double leaf_mean(uint64_t leaf) const {
         double sum = 0.0;
@@ -335,13 +387,13 @@ private:
     float upper(uint64_t node, const int32_t o[3]) {
         float M = kNone, R = kNone;
         Control control;
-        NodeTiles &tiles = m_tiles[1];
+        NodeTiles &tiles = m_upper_tiles;
         tiles.build(*this, 2, node);
         for (uint32_t n = 0; n < layout::UPPER_TABLE_COUNT; ++n) {
             int32_t eo[3];
             m_view.entry_origin(2, o, n, eo);
-            if (m_view.child_bit(2, node, n)) {
-                const auto [M_child, child] = lower(m_view.child(2, node, n), eo);
+            if (m_view.child_bit(2, node, n)) { // (lower_nodes() bounded it)
+                const auto [M_child, child] = m_lower[index(1, m_view.child(2, node, n))];
                 raise(M, M_child);
                 add(control, child, layout::UPPER_TABLE_COUNT);
                 continue;
@@ -356,7 +408,7 @@ private:
             // (an index grid's walk cannot read a tile's value, only R)
             if (r > v || m_codec.indexed())
                 raise(R, r);
-            add(control, tile_control(1, eo, v, node, n), layout::UPPER_TABLE_COUNT);
+            add(control, tile_control(1, eo, v, node, n, tiles), layout::UPPER_TABLE_COUNT);
         }
         const size_t i = index(2, node);
         const uint32_t slot = m_out.layout.upper_slot + nanovdb_drjit::UPPER_SLOTS * uint32_t(i);
@@ -367,15 +419,16 @@ private:
     }
 
     /// A tile of value v (start()ed) whose cell at `level` starts at o
-    /// (entry e of node `parent`, whose NodeTiles m_tiles[level] holds): its control
+    /// (entry e of node `parent`, whose NodeTiles are `tiles`): its control
     /// (the value; the smallest of it and its ring)
-    Control tile_control(int level, const int32_t o[3], float v, uint64_t parent, uint32_t e) {
+    Control tile_control(int level, const int32_t o[3], float v, uint64_t parent, uint32_t e,
+                         const NodeTiles &tiles) const {
         Control c;
         c.mean = std::isfinite(v) ? v : 0.0;
         c.lo = std::isnan(v) || v == kNone ? std::numeric_limits<float>::infinity() : v;
         if (c.lo > 0.f) { // (a lower bound is >= 0: the ring cannot matter)
-            if (m_tiles[level].fast(e))
-                lower_to(c.lo, m_tiles[level].lo[e]);
+            if (tiles.fast(e))
+                lower_to(c.lo, tiles.lo[e]);
             else
                 ring<false>(level, o, c.lo, parent);
         }
@@ -392,13 +445,15 @@ private:
     void put_bits(uint32_t slot, uint32_t bits) { std::memcpy(&m_out.values[slot], &bits, 4); }
 
     /// A lower node at byte `node`, first voxel `o`: returns its M and control
-    std::pair<float, Control> lower(uint64_t node, const int32_t o[3]) {
+    std::pair<float, Control> lower(uint64_t node, const int32_t o[3], Scratch &scratch) {
+        std::vector<float> &m_entry = scratch.entry;
+        std::vector<Control> &m_entry_control = scratch.entry_control;
         float M = kNone, R = kNone;
         Control control, bricks[nanovdb_drjit::LOWER_BRICK_COUNT];
         float brick[nanovdb_drjit::LOWER_BRICK_COUNT], brick_lo[nanovdb_drjit::LOWER_BRICK_COUNT];
         std::fill(std::begin(brick), std::end(brick), kNone);
         std::fill(std::begin(brick_lo), std::end(brick_lo), std::numeric_limits<float>::infinity());
-        NodeTiles &tiles = m_tiles[0];
+        NodeTiles &tiles = scratch.tiles;
         tiles.build(*this, 1, node);
         for (uint32_t n = 0; n < layout::LOWER_TABLE_COUNT; ++n) {
             int32_t eo[3];
@@ -423,7 +478,7 @@ private:
                     ring(0, eo, r, node);
                 if (r > v)
                     raise(R, r);
-                m_entry_control[n] = tile_control(0, eo, v, node, n);
+                m_entry_control[n] = tile_control(0, eo, v, node, n, tiles);
             }
             raise(M, r);
             const uint32_t b = nanovdb_drjit::brick_of(uint32_t(n >> 8) << 3,
@@ -528,9 +583,8 @@ private:
     const uint32_t m_ring; ///< the ring's thickness in voxels (1-8)
     float m_background = 0.f;
     std::vector<float> m_lower_min, m_lower_max, m_upper_min, m_upper_max; ///< no ring
-    std::vector<float> m_entry = std::vector<float>(nanovdb_drjit::LOWER_ENTRY_COUNT); ///< lower(): its entries' bounds
-    std::vector<Control> m_entry_control = std::vector<Control>(nanovdb_drjit::LOWER_ENTRY_COUNT); ///< ... and controls
-    NodeTiles m_tiles[2]; ///< the lower node lower() is at, the upper node upper() is at
+    std::vector<std::pair<float, Control>> m_lower; ///< lower nodes' M and control (lower_nodes())
+    NodeTiles m_upper_tiles; ///< the upper node upper() is at
     NodeMajorants m_out;
 };
 
