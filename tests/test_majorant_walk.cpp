@@ -553,6 +553,37 @@ TEST_CASE("majorant walk: LLVM equals scalar step for step") {
     }
 }
 
+TEST_CASE("majorant table: many threads build what one thread builds, bit for bit") {
+    // (node_majorants bounds the lower nodes in parallel, each thread with
+    // its own scratch and its own nodes' slots: a shared scratch or a race
+    // on a slot shows up here as a differing table)
+    for (const WalkGrid &g : walk_grids()) {
+        CAPTURE(g.name);
+        const loader::ValidatedGrid v =
+            g.index_values.empty()
+                ? loader::validate_grid(g.name, g.words.data(), g.words.size() * 4)
+                : loader::validate_grid(g.name, g.words.data(), g.words.size() * 4,
+                                        loader::IndexValues{
+                                            const_cast<float *>(g.index_values.data()),
+                                            g.index_values.size(),
+                                            { g.index_background, g.index_background,
+                                              g.index_background } });
+        for (int ring : { 1, 2 }) {
+            const loader::NodeMajorants one = loader::node_majorants(v, ring, 1),
+                                        many = loader::node_majorants(v, ring, 7);
+            CHECK(one.values.size() == many.values.size());
+            CHECK(std::memcmp(one.values.data(), many.values.data(),
+                              4 * std::min(one.values.size(), many.values.size())) == 0);
+            CHECK(one.tile_origins == many.tile_origins);
+            // (and the loader's default, as the plugin calls it: ring 1)
+            if (ring == 1)
+                CHECK(std::memcmp(one.values.data(), g.majorants.values.data(),
+                                  4 * std::min(one.values.size(),
+                                               g.majorants.values.size())) == 0);
+        }
+    }
+}
+
 TEST_CASE("majorant walk: a ring of 2 bounds the tricubic reach, a ring of 1 does not") {
     size_t exceeded_by_ring1 = 0;
     for (const WalkGrid &g : walk_grids()) {

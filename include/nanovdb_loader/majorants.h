@@ -96,7 +96,9 @@ struct NodeMajorants {
     uint64_t bytes() const { return uint64_t(values.size()) * sizeof(float); }
 };
 
-NodeMajorants node_majorants(const ValidatedGrid &grid, int ring = 1);
+/// `threads`: how many threads bound the lower nodes (0: one per core, at
+/// most 16, fewer for a small tree); the table is the same for any number.
+NodeMajorants node_majorants(const ValidatedGrid &grid, int ring = 1, unsigned threads = 0);
 
 /**
  * The mean over the voxels of `box` of the bound of the majorant walk's

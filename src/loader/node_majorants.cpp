@@ -78,8 +78,8 @@ struct Cover {
 
 class Builder {
 public:
-    Builder(const ValidatedGrid &grid, int ring)
-        : m_grid(grid), m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type, &grid.index_values()),
+    Builder(const ValidatedGrid &grid, int ring, unsigned threads)
+        : m_threads(threads), m_grid(grid), m_view(grid), m_buf(grid.data()), m_codec(grid.summary().grid_type, &grid.index_values()),
           m_ring(uint32_t(std::clamp(ring, 1, 8))) {
         const GridSummary &s = grid.summary();
         const layout::GridTypeConstants &c = m_codec.constants();
@@ -150,10 +150,13 @@ private:
             for (size_t i; (i = next.fetch_add(1)) < jobs.size();)
                 m_lower[index(1, jobs[i].node)] = lower(jobs[i].node, jobs[i].o, scratch);
         };
-        // (threads only where there is enough to share: 16 lower nodes
-        // are 64 K entries)
-        const size_t threads = std::min<size_t>(
-            std::clamp(std::thread::hardware_concurrency(), 1u, 16u), jobs.size() / 16 + 1);
+        // (by default, threads only where there is enough to share: 16
+        // lower nodes are 64 K entries)
+        const size_t threads =
+            m_threads != 0 ? std::min<size_t>(m_threads, std::max<size_t>(jobs.size(), 1))
+                           : std::min<size_t>(std::clamp(std::thread::hardware_concurrency(),
+                                                         1u, 16u),
+                                              jobs.size() / 16 + 1);
         std::vector<std::thread> pool;
         for (size_t k = 1; k < threads; ++k)
             pool.emplace_back(work);
@@ -576,6 +579,7 @@ private:
         m_out.values[m_out.layout.background_slot] = m;
     }
 
+    const unsigned m_threads; ///< lower_nodes()'s threads (0: one per core)
     const ValidatedGrid &m_grid;
     const TreeView m_view;
     const uint8_t *m_buf;
@@ -590,6 +594,8 @@ private:
 
 } // namespace
 
-NodeMajorants node_majorants(const ValidatedGrid &grid, int ring) { return Builder(grid, ring).run(); }
+NodeMajorants node_majorants(const ValidatedGrid &grid, int ring, unsigned threads) {
+    return Builder(grid, ring, threads).run();
+}
 
 } // namespace nanovdb_loader
