@@ -65,14 +65,20 @@ class Hunk:
 
 
 def strip_doc_block(lines):
-    """The lines outside the ``/**!`` documentation block, as (number, text)."""
-    out, inside = [], False
+    """The lines outside the plugin's documentation block, as (number,
+    text): C++'s ``/**! ... */``; Python's class docstring ``r\"\"\" ...
+    \"\"\"`` (the same block in Mitsuba's Python plugins). Each copy's block
+    is its own page (docs/generate_plugin_doc.py), not code to diff."""
+    out, inside, close = [], False, None
     for n, text in enumerate(lines, 1):
         if not inside and text.lstrip().startswith("/**!"):
-            inside = True
+            inside, close = True, "*/"
+        elif not inside and text.strip() == 'r"""':
+            inside, close = True, '"""'
+            continue  # (the closing quotes are on a later line)
         if not inside:
             out.append((n, text))
-        elif "*/" in text:
+        elif close in text:
             inside = False
     return out
 

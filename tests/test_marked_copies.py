@@ -125,3 +125,15 @@ def test08_command_line_refuses_a_directory_without_upstream(tmp_path):
     assert "not found" in r.stderr
     r = subprocess.run([sys.executable, str(SCRIPT)], capture_output=True, text=True)
     assert r.returncode == 2
+
+
+def test09_python_docstring_block_is_left_out():
+    """A Python plugin's class docstring is its doc block (Mitsuba's Python
+    integrators): left out as /**! is; code after it still counts"""
+    up = ['class A:', '    r"""', '    .. _integrator-a:', '    A (:monosp:`a`)',
+          '    """', '    def f(self):', '        return 1']
+    ours = ['class A:', '    r"""', '    .. _integrator-b:', '    B, documented', '    at length',
+            '    """', '    def f(self):', '        return 1']
+    assert mc.hunks(up, ours) == []
+    changed = ours[:-1] + ['        return 2']
+    assert len(mc.hunks(up, changed)) == 1
