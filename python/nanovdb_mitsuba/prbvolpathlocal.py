@@ -157,9 +157,8 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
             if m is None or medium_index(m) in seen:
                 continue
             seen.add(medium_index(m))
-            kind = self.bridge.tracked(m, self.max_ratio)
-            if kind:
-                self.tracked.append((m, medium_index(m), kind == 2))
+            if self.bridge.tracked(m, self.max_ratio):  # (2: it emits; fly() sees to that)
+                self.tracked.append((m, medium_index(m)))
         self.prepared_for = scene
 
         for shape in scene.shapes():
@@ -553,15 +552,11 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
 
         return emitter_val * dr.detach(transmittance), ds
 
-    # prbvolpathlocal: the tracked media's lanes and tentative collisions
-    @property
-    def emissive(self):
-        return any(e for _, _, e in self.tracked)
-
+    # prbvolpathlocal: the tracked media's lanes, free flights and shadow rays
     def tracked_lanes(self, medium, active):
         """The lanes of `active` in a tracked medium"""
         lanes = mi.Bool(False)
-        for m, _, _ in self.tracked:
+        for m, _ in self.tracked:
             lanes |= active & (medium == mi.MediumPtr(m))
         return lanes
 
@@ -583,7 +578,7 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
         seed = self.seed(sampler, tracked)
         w = mi.Spectrum(0.0) if w is None else w
         tr = mi.Spectrum(1.0)
-        for m, index, _ in self.tracked:
+        for m, index in self.tracked:
             in_k = tracked & (medium == mi.MediumPtr(m))
             tr[in_k] = self.bridge.transmit(index, ray, tmax, seed, w, in_k, is_primal,
                                             self.coarse_depth, self.transmittance_headroom)
@@ -602,7 +597,7 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
         mei = dr.zeros(mi.MediumInteraction3f)
         mei.t = mi.Float(dr.inf)
         throughput, L = mi.Spectrum(throughput), mi.Spectrum(L)
-        for m, index, _ in self.tracked:
+        for m, index in self.tracked:
             in_k = tracked & (medium == mi.MediumPtr(m))
             t, majorant, sigma_s, sigma_t, throughput_k, L_k = self.bridge.fly(
                 index, ray, tmax, seed, throughput, L, δL, in_k, is_primal, self.coarse_depth,

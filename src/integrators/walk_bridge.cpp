@@ -201,6 +201,7 @@ template <typename Float, typename Spectrum> struct Bridge {
      */
     static void fly(uint32_t id, float coarse_depth, float headroom, bool primal,
                     const uint64_t *idx, uint64_t *out) {
+        dr::suspend_grad<Float> no_graph(primal); // (the primal pass wants no derivatives)
         Inputs a(id, idx);
         UnpolarizedSpectrum throughput = a.spectrum(), L = a.spectrum(), dL = a.spectrum();
         Mask active = a.mask();
@@ -281,6 +282,9 @@ template <typename Float, typename Spectrum> struct Bridge {
      */
     static void transmit(uint32_t id, float coarse_depth, float headroom, bool primal,
                          const uint64_t *idx, uint64_t *out) {
+        // (the primal pass, and the adjoint pass's primal-mode call of
+        // sample_emitter, want no derivatives: no AD graph for them)
+        dr::suspend_grad<Float> no_graph(primal);
         Inputs a(id, idx);
         UnpolarizedSpectrum w = a.spectrum();
         Mask active = a.mask();
@@ -330,13 +334,11 @@ inline int unknown(char *err, size_t err_len, std::string_view variant) {
     return -1;
 }
 
-} // namespace walk_bridge
-NAMESPACE_END(mitsuba)
+/// A Bridge type, passed to a generic lambda
+template <typename B> struct Tag { using type = B; };
 
-// One set of C functions per backend: FN(variant name, Float, Spectrum) for
-// each AD variant the bridge serves (prbvolpath's: not the polarized ones)
-NAMESPACE_BEGIN(mitsuba)
-namespace walk_bridge {
+// The AD variants the bridge serves per backend (prbvolpath's: not the
+// polarized ones), FN(variant name, Float, Spectrum) each
 template <JitBackend B> using F = dr::DiffArray<B, float>;
 using LlvmRgb = Color<F<JitBackend::LLVM>, 3>;
 using LlvmMono = Color<F<JitBackend::LLVM>, 1>;
@@ -344,75 +346,73 @@ using LlvmSpectral = Spectrum<F<JitBackend::LLVM>, 4>;
 using CudaRgb = Color<F<JitBackend::CUDA>, 3>;
 using CudaMono = Color<F<JitBackend::CUDA>, 1>;
 using CudaSpectral = Spectrum<F<JitBackend::CUDA>, 4>;
+using LlvmFloat = F<JitBackend::LLVM>;
+using CudaFloat = F<JitBackend::CUDA>;
+#define NVDB_BRIDGE_LLVM_VARIANTS(FN)                                                   \
+    FN("llvm_ad_rgb", LlvmFloat, LlvmRgb)                                                 \
+    FN("llvm_ad_mono", LlvmFloat, LlvmMono)                                               \
+    FN("llvm_ad_spectral", LlvmFloat, LlvmSpectral)
+#define NVDB_BRIDGE_CUDA_VARIANTS(FN)                                                   \
+    FN("cuda_ad_rgb", CudaFloat, CudaRgb)                                                 \
+    FN("cuda_ad_mono", CudaFloat, CudaMono)                                               \
+    FN("cuda_ad_spectral", CudaFloat, CudaSpectral)
+
+// fn(Tag<Bridge<Float, Spectrum>>) for the variant named, its exceptions
+// as a message in err; a variant this file does not compile answers "not
+// compiled" (its Bridge is never instantiated)
+#define NVDB_BRIDGE_CASE(name, Float_, Spectrum_)                                         \
+    if (v == name) {                                                                      \
+        if constexpr (compiled(name))                                                     \
+            return fn(Tag<Bridge<Float_, Spectrum_>>{});                                  \
+        else                                                                              \
+            return unknown(err, err_len, v);                                              \
+    }
+#define NVDB_BRIDGE_DISPATCH(suffix, VARIANTS)                                            \
+    template <typename Fn>                                                                \
+    int dispatch_##suffix(const char *variant, char *err, size_t err_len, Fn &&fn) {      \
+        std::string_view v(variant);                                                      \
+        return guarded(err, err_len, [&]() -> int {                                       \
+            VARIANTS(NVDB_BRIDGE_CASE)                                                    \
+            return unknown(err, err_len, v);                                              \
+        });                                                                               \
+    }
+NVDB_BRIDGE_DISPATCH(llvm, NVDB_BRIDGE_LLVM_VARIANTS)
+NVDB_BRIDGE_DISPATCH(cuda, NVDB_BRIDGE_CUDA_VARIANTS)
+
 } // namespace walk_bridge
 NAMESPACE_END(mitsuba)
-#define NVDB_BRIDGE_LLVM_VARIANTS(FN)                                                   \
-    FN("llvm_ad_rgb", F<JitBackend::LLVM>, LlvmRgb)                                       \
-    FN("llvm_ad_mono", F<JitBackend::LLVM>, LlvmMono)                                     \
-    FN("llvm_ad_spectral", F<JitBackend::LLVM>, LlvmSpectral)
-#define NVDB_BRIDGE_CUDA_VARIANTS(FN)                                                   \
-    FN("cuda_ad_rgb", F<JitBackend::CUDA>, CudaRgb)                                       \
-    FN("cuda_ad_mono", F<JitBackend::CUDA>, CudaMono)                                     \
-    FN("cuda_ad_spectral", F<JitBackend::CUDA>, CudaSpectral)
 
-// (a variant this file does not compile answers "not compiled")
-#define NVDB_BRIDGE_DISPATCH(name, F, S, CALL)                                            \
-    if (v == name) {                                                                      \
-        if constexpr (mitsuba::walk_bridge::compiled(name)) {                             \
-            using namespace mitsuba::walk_bridge;                                         \
-            using B = Bridge<F, S>;                                 \
-            CALL;                                                                         \
-        } else                                                                            \
-            return mitsuba::walk_bridge::unknown(err, err_len, v);                        \
-    }
-#define NVDB_BRIDGE_TRACKED(name, F, S)                                                   \
-    NVDB_BRIDGE_DISPATCH(name, F, S, return B::tracked(id, max_ratio))
-#define NVDB_BRIDGE_NEXT(name, F, S)                                                      \
-    NVDB_BRIDGE_DISPATCH(name, F, S, B::next_collision(id, coarse_depth, headroom, in, out); \
-                         return 0)
-#define NVDB_BRIDGE_FLY(name, F, S)                                                       \
-    NVDB_BRIDGE_DISPATCH(name, F, S, B::fly(id, coarse_depth, headroom, primal != 0, in, out); \
-                         return 0)
-#define NVDB_BRIDGE_TRANSMIT(name, F, S)                                                  \
-    NVDB_BRIDGE_DISPATCH(name, F, S,                                                      \
-                         B::transmit(id, coarse_depth, headroom, primal != 0, in, out);   \
-                         return 0)
-
-#define NVDB_BRIDGE_FUNCTIONS(suffix, VARIANTS)                                            \
+// One set of C functions per backend (walk_bridge.py's argtypes)
+#define NVDB_BRIDGE_FUNCTIONS(suffix)                                                      \
     extern "C" MI_EXPORT int nvdb_walk_tracked_##suffix(const char *variant, uint32_t id,  \
                                                          float max_ratio, char *err,        \
                                                          size_t err_len) {                 \
-        std::string_view v(variant);                                                       \
-        return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
-            VARIANTS(NVDB_BRIDGE_TRACKED)                                                  \
-            return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
+        return mitsuba::walk_bridge::dispatch_##suffix(variant, err, err_len, [&](auto b) { \
+            return decltype(b)::type::tracked(id, max_ratio);                              \
         });                                                                                \
     }                                                                                      \
     extern "C" MI_EXPORT int nvdb_walk_next_collision_##suffix(                            \
         const char *variant, uint32_t id, float coarse_depth, float headroom,              \
         const uint64_t *in, uint64_t *out, char *err, size_t err_len) {                    \
-        std::string_view v(variant);                                                       \
-        return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
-            VARIANTS(NVDB_BRIDGE_NEXT)                                                     \
-            return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
+        return mitsuba::walk_bridge::dispatch_##suffix(variant, err, err_len, [&](auto b) { \
+            decltype(b)::type::next_collision(id, coarse_depth, headroom, in, out);        \
+            return 0;                                                                      \
         });                                                                                \
     }                                                                                      \
     extern "C" MI_EXPORT int nvdb_walk_fly_##suffix(                                       \
         const char *variant, uint32_t id, float coarse_depth, float headroom, int primal,  \
         const uint64_t *in, uint64_t *out, char *err, size_t err_len) {                    \
-        std::string_view v(variant);                                                       \
-        return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
-            VARIANTS(NVDB_BRIDGE_FLY)                                                      \
-            return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
+        return mitsuba::walk_bridge::dispatch_##suffix(variant, err, err_len, [&](auto b) { \
+            decltype(b)::type::fly(id, coarse_depth, headroom, primal != 0, in, out);      \
+            return 0;                                                                      \
         });                                                                                \
     }                                                                                      \
     extern "C" MI_EXPORT int nvdb_walk_transmit_##suffix(                                  \
         const char *variant, uint32_t id, float coarse_depth, float headroom, int primal,  \
         const uint64_t *in, uint64_t *out, char *err, size_t err_len) {                    \
-        std::string_view v(variant);                                                       \
-        return mitsuba::walk_bridge::guarded(err, err_len, [&]() -> int {                  \
-            VARIANTS(NVDB_BRIDGE_TRANSMIT)                                                 \
-            return mitsuba::walk_bridge::unknown(err, err_len, v);                         \
+        return mitsuba::walk_bridge::dispatch_##suffix(variant, err, err_len, [&](auto b) { \
+            decltype(b)::type::transmit(id, coarse_depth, headroom, primal != 0, in, out); \
+            return 0;                                                                      \
         });                                                                                \
     }                                                                                      \
     /* Hands back the references of output indices (each once) */                          \
@@ -424,8 +424,8 @@ NAMESPACE_END(mitsuba)
 // The LLVM part (or, not built in parts, the only file): the LLVM set; the
 // CUDA part: the CUDA set; the scalar part: none
 #if !defined(NVDB_PLUGIN_PART) || NVDB_PLUGIN_PART == 2
-NVDB_BRIDGE_FUNCTIONS(llvm, NVDB_BRIDGE_LLVM_VARIANTS)
+NVDB_BRIDGE_FUNCTIONS(llvm)
 #endif
 #if !defined(NVDB_PLUGIN_PART) || NVDB_PLUGIN_PART == 3
-NVDB_BRIDGE_FUNCTIONS(cuda, NVDB_BRIDGE_CUDA_VARIANTS)
+NVDB_BRIDGE_FUNCTIONS(cuda)
 #endif
