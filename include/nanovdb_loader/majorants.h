@@ -13,10 +13,13 @@
 #pragma once
 
 #include <nanovdb_drjit/majorant_table.h>
+#include <nanovdb_drjit/rebuild_plan.h>
 #include <nanovdb_loader/validation.h>
 
 #include <array>
 #include <cstdint>
+#include <optional>
+#include <string>
 #include <vector>
 
 namespace nanovdb_loader {
@@ -99,6 +102,16 @@ struct NodeMajorants {
 /// `threads`: how many threads bound the lower nodes (0: one per core, at
 /// most 16, fewer for a small tree); the table is the same for any number.
 NodeMajorants node_majorants(const ValidatedGrid &grid, int ring = 1, unsigned threads = 0);
+
+/**
+ * What the backend needs of an index grid's tree to rebuild its majorant
+ * table from new values (nanovdb_drjit/majorant_rebuild.h): the same
+ * table as node_majorants(grid, ring) computes from them. Nothing (and the
+ * reason in `why`) for a grid it cannot plan: not an index grid, 2^31
+ * values or more, no leaves, or a node that lookups reach not exactly once.
+ */
+std::optional<nanovdb_drjit::MajorantRebuildPlan>
+majorant_rebuild_plan(const ValidatedGrid &grid, int ring = 1, std::string *why = nullptr);
 
 /**
  * The mean over the voxels of `box` of the bound of the majorant walk's

@@ -1,0 +1,598 @@
+/*
+    nanovdb_drjit/majorant_rebuild.h -- an index grid's majorant table,
+    rebuilt on the backend from its values (params.update() in an
+    optimization), with no host round trip: LLVM and CUDA
+
+    Beyond PNanoVDB. The same table, bit for bit, as the loader's
+    node_majorants (src/loader/node_majorants.cpp) computes on the host from
+    the same values, in the layout majorant_table.h describes, as
+    MajorantGrid::make writes it (value slots times `factor`, bits as they
+    are). The tree's part is read once at load (rebuild_plan.h); each pass
+    here is one kernel over the cells of one level, bottom-up:
+
+      1. each value index's bound (its largest channel) and smallest channel;
+      2. the leaves, a row of 8 voxels per lane, then a plane, then a leaf:
+         max and min over each of the 27 layers of a leaf (per axis: all of
+         it, its `ring` lowest or highest voxels), the mean, the smallest
+         channel: what a neighbour's ring reads of it;
+      3. the lower nodes' entries (a lane each, in brick order): the ringed
+         max and min of a leaf or a tile from the 26 neighbouring cells
+         (inside the node, or through the 27 codes around it), then the
+         bricks and the node by block reductions; the 8-bit fractions and
+         controls, four entries to a word;
+      4. the lower nodes' layers (what an upper tile's ring reads of them);
+      5. the upper nodes' entries, the same way, and their layers;
+      6. the root tiles and the background.
+
+    Sums of means (the controls' c) are added in another order than the
+    host's: a control can differ where its c lies within rounding of a
+    quantization step's middle (none on the test grids).
+*/
+
+#pragma once
+
+#include "layout.h"
+#include "majorant_table.h"
+#include "rebuild_plan.h"
+
+#include <drjit/jit.h>
+
+#include <cstdint>
+#include <limits>
+
+namespace nanovdb_drjit {
+
+template <typename Float> class MajorantRebuild {
+    static_assert(drjit::is_jit_v<Float>, "the rebuild runs on the LLVM or CUDA backend");
+    using UInt32 = drjit::uint32_array_t<Float>;
+    using Int32 = drjit::int32_array_t<Float>;
+    using UInt64 = drjit::uint64_array_t<Float>;
+    using Float64 = drjit::float64_array_t<Float>;
+    using Mask = drjit::mask_t<Float>;
+    static constexpr float Inf = std::numeric_limits<float>::infinity();
+
+public:
+    MajorantRebuild() = default;
+
+    explicit MajorantRebuild(const MajorantRebuildPlan &p)
+        : m_layout(p.layout), m_ring(p.ring), m_leaves(p.leaf_count), m_lowers(p.lower_count),
+          m_uppers(p.upper_count), m_tiles(uint32_t(p.tile_index.size())),
+          m_leaf_words(p.leaf_words), m_background_index(p.background_index),
+          m_background_pairs(uint32_t(p.background_codes.size())) {
+        m_lower_entries = load(p.lower_entries);
+        m_upper_entries = load(p.upper_entries);
+        m_lower_around = load(p.lower_around);
+        m_upper_around = load(p.upper_around);
+        m_tile_codes = load(p.tile_codes);
+        m_tile_around = load(p.tile_around);
+        m_tile_index = drjit::load<UInt32>(p.tile_index.data(), p.tile_index.size());
+        m_background_codes = load(p.background_codes);
+        m_background_layers =
+            drjit::load<UInt32>(p.background_layers.data(), p.background_layers.size());
+    }
+
+    bool valid() const { return m_layout.size != 0; }
+
+    /// The table's words from the grid's words and its values (`channels`
+    /// floats per value index 1, 2, ...; `background`: index 0's)
+    UInt32 table(const UInt32 &grid, const Float &values, uint32_t channels,
+                 const float background[3], float factor) const {
+        namespace dr = drjit;
+        Float bound, low;
+        value_bounds(values, channels, background, bound, low);
+        Leaves leaves = leaf_layers(grid, bound, low);
+        UInt32 out = dr::full<UInt32>(0xff800000u, m_layout.size); // (-Inf: a slot nobody writes)
+        Lowers lowers = lower_nodes(leaves, bound, factor, out);
+        Float lower_max, lower_min;
+        node_layers(m_lower_entries, LOWER_DIM, m_lowers, leaves.max, leaves.min, bound, lower_max,
+                    lower_min);
+        Float upper_M = upper_nodes(lowers, lower_max, lower_min, bound, factor, out);
+        Float upper_max, upper_min;
+        node_layers(m_upper_entries, UPPER_DIM, m_uppers, lower_max, lower_min, bound, upper_max,
+                    upper_min);
+        tiles(upper_M, upper_max, bound, factor, out);
+        dr::eval(out);
+        return out;
+    }
+
+private:
+    static constexpr uint32_t LOWER_DIM = 16, UPPER_DIM = 32;
+
+    static Int32 load(const std::vector<int32_t> &v) {
+        return drjit::load<Int32>(v.data(), v.size());
+    }
+    static UInt32 bits(const Float &v) { return drjit::reinterpret_array<UInt32>(v); }
+    static void schedule(Float *v, int n) {
+        for (int k = 0; k < n; ++k)
+            drjit::schedule(v[k]);
+    }
+
+    /// Per value index: its bound (largest channel) and smallest channel
+    static void value_bounds(const Float &values, uint32_t channels, const float background[3],
+                             Float &bound, Float &low) {
+        namespace dr = drjit;
+        const uint32_t count = uint32_t(dr::width(values) / channels);
+        const UInt32 index = dr::arange<UInt32>(count + 1);
+        const Mask stored = index > 0u;
+        const UInt32 first = channels * (index - 1u);
+        Float hi = dr::gather<Float>(values, first, stored), lo = hi;
+        float bg_hi = background[0], bg_lo = background[0];
+        if (channels == 3) {
+            for (uint32_t k = 1; k < 3; ++k) {
+                const Float c = dr::gather<Float>(values, first + k, stored);
+                hi = dr::maximum(hi, c);
+                lo = dr::minimum(lo, c);
+                bg_hi = std::max(bg_hi, background[k]);
+                bg_lo = std::min(bg_lo, background[k]);
+            }
+        }
+        bound = dr::select(stored, hi, bg_hi);
+        low = dr::select(stored, lo, bg_lo);
+        dr::eval(bound, low);
+    }
+
+    // ---- 2. The leaves' layers ----------------------------------------------------
+
+    /// Per leaf: max and min over each of its 27 layers (leaf * 27 + layer),
+    /// the mean of its voxels' bounds, its smallest channel
+    struct Leaves {
+        Float max, min, low;
+        Float64 mean;
+    };
+
+    /// max / min of `v` into the three parts of an axis that coordinate c (of
+    /// 8) is in: all, its first `ring`, its last `ring`
+    void add_to_parts(uint32_t c, const Float &hi, const Float &lo, Float mx[3], Float mn[3]) const {
+        namespace dr = drjit;
+        mx[0] = dr::maximum(mx[0], hi);
+        mn[0] = dr::minimum(mn[0], lo);
+        if (c < m_ring) {
+            mx[1] = dr::maximum(mx[1], hi);
+            mn[1] = dr::minimum(mn[1], lo);
+        }
+        if (c + m_ring >= 8) {
+            mx[2] = dr::maximum(mx[2], hi);
+            mn[2] = dr::minimum(mn[2], lo);
+        }
+    }
+
+    Leaves leaf_layers(const UInt32 &grid, const Float &bound, const Float &low) const {
+        namespace dr = drjit;
+        const GridTypeConstants &c = GRID_TYPE_CONSTANTS_ONINDEX;
+        // Rows (leaf, x, y): 8 voxels along z, their value indices from the
+        // leaf's mask, first index and prefix sums (PNanoVDB's
+        // pnanovdb_leaf_onindex_get_value_index)
+        Float row_max[3], row_min[3], row_low;
+        Float64 row_sum;
+        {
+            const UInt32 lane = dr::arange<UInt32>(m_leaves * 64u);
+            const UInt32 x = (lane >> 3) & 7u, y = lane & 7u;
+            const UInt32 leaf = m_layout.leaf_begin_word + (lane >> 6) * m_leaf_words;
+            const UInt32 mask_word = leaf + LEAF_OFF_VALUE_MASK / 4 + 2u * x,
+                         table = leaf + c.leaf_off_table / 4;
+            auto u64 = [&](const UInt32 &at) {
+                return UInt64(dr::gather<UInt32>(grid, at)) |
+                       (UInt64(dr::gather<UInt32>(grid, at + 1u)) << 32);
+            };
+            const UInt64 mask = u64(mask_word), prefix = u64(table + ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM / 4);
+            const UInt32 first = dr::gather<UInt32>(grid, table); // (< 2^31: the plan)
+            const UInt64 shift = UInt64(8u * y);
+            const UInt32 byte = UInt32(mask >> shift) & 255u;
+            const UInt32 before =
+                UInt32(dr::popcnt(mask & ((UInt64(1) << shift) - UInt64(1)))) +
+                dr::select(x > 0u,
+                           UInt32((prefix >> UInt64(9u * dr::select(x > 0u, x - 1u, 0u))) & 511u), 0u);
+            const UInt32 base = first + before;
+            for (int k = 0; k < 3; ++k) {
+                row_max[k] = dr::full<Float>(-Inf, m_leaves * 64u);
+                row_min[k] = dr::full<Float>(Inf, m_leaves * 64u);
+            }
+            row_low = dr::full<Float>(Inf, m_leaves * 64u);
+            row_sum = dr::zeros<Float64>(m_leaves * 64u);
+            for (uint32_t z = 0; z < 8; ++z) {
+                const Mask on = ((byte >> z) & 1u) != 0u;
+                const UInt32 index = dr::select(on, base + dr::popcnt(byte & ((1u << z) - 1u)), 0u);
+                const Float b = dr::gather<Float>(bound, index);
+                add_to_parts(z, b, b, row_max, row_min);
+                row_low = dr::minimum(row_low, dr::gather<Float>(low, index));
+                row_sum += Float64(dr::select(dr::isfinite(b), b, 0.f));
+            }
+            schedule(row_max, 3);
+            schedule(row_min, 3);
+            dr::eval(row_low, row_sum);
+        }
+        // Planes (leaf, x): 3 x 3 parts in (y, z)
+        Float plane_max[9], plane_min[9], plane_low;
+        Float64 plane_sum;
+        {
+            const UInt32 lane = dr::arange<UInt32>(m_leaves * 8u);
+            for (int k = 0; k < 9; ++k) {
+                plane_max[k] = dr::full<Float>(-Inf, m_leaves * 8u);
+                plane_min[k] = dr::full<Float>(Inf, m_leaves * 8u);
+            }
+            plane_low = dr::full<Float>(Inf, m_leaves * 8u);
+            plane_sum = dr::zeros<Float64>(m_leaves * 8u);
+            for (uint32_t y = 0; y < 8; ++y) {
+                const UInt32 row = lane * 8u + y;
+                for (uint32_t kz = 0; kz < 3; ++kz) {
+                    const Float hi = dr::gather<Float>(row_max[kz], row),
+                                lo = dr::gather<Float>(row_min[kz], row);
+                    Float mx[3] = { plane_max[kz], plane_max[3 + kz], plane_max[6 + kz] },
+                          mn[3] = { plane_min[kz], plane_min[3 + kz], plane_min[6 + kz] };
+                    add_to_parts(y, hi, lo, mx, mn);
+                    for (uint32_t ky = 0; ky < 3; ++ky) {
+                        plane_max[3 * ky + kz] = mx[ky];
+                        plane_min[3 * ky + kz] = mn[ky];
+                    }
+                }
+                plane_low = dr::minimum(plane_low, dr::gather<Float>(row_low, row));
+                plane_sum += dr::gather<Float64>(row_sum, row);
+            }
+            schedule(plane_max, 9);
+            schedule(plane_min, 9);
+            dr::eval(plane_low, plane_sum);
+        }
+        // Leaves: 27 layers
+        Leaves out;
+        {
+            const UInt32 leaf = dr::arange<UInt32>(m_leaves);
+            Float mx[27], mn[27];
+            for (int k = 0; k < 27; ++k) {
+                mx[k] = dr::full<Float>(-Inf, m_leaves);
+                mn[k] = dr::full<Float>(Inf, m_leaves);
+            }
+            out.low = dr::full<Float>(Inf, m_leaves);
+            Float64 sum = dr::zeros<Float64>(m_leaves);
+            for (uint32_t x = 0; x < 8; ++x) {
+                const UInt32 plane = leaf * 8u + x;
+                for (uint32_t kyz = 0; kyz < 9; ++kyz) {
+                    const Float hi = dr::gather<Float>(plane_max[kyz], plane),
+                                lo = dr::gather<Float>(plane_min[kyz], plane);
+                    Float a[3] = { mx[kyz], mx[9 + kyz], mx[18 + kyz] },
+                          b[3] = { mn[kyz], mn[9 + kyz], mn[18 + kyz] };
+                    add_to_parts(x, hi, lo, a, b);
+                    for (uint32_t kx = 0; kx < 3; ++kx) {
+                        mx[9 * kx + kyz] = a[kx];
+                        mn[9 * kx + kyz] = b[kx];
+                    }
+                }
+                out.low = dr::minimum(out.low, dr::gather<Float>(plane_low, plane));
+                sum += dr::gather<Float64>(plane_sum, plane);
+            }
+            out.mean = sum * (1.0 / 512.0);
+            out.max = dr::zeros<Float>(m_leaves * 27u);
+            out.min = dr::zeros<Float>(m_leaves * 27u);
+            for (uint32_t k = 0; k < 27; ++k) {
+                dr::scatter(out.max, mx[k], leaf * 27u + k);
+                dr::scatter(out.min, mn[k], leaf * 27u + k);
+            }
+            dr::eval(out.max, out.min, out.low, out.mean);
+        }
+        return out;
+    }
+
+    // ---- 3.-5. Internal nodes ------------------------------------------------------
+
+    /// The ringed max and min of the cell of entry (x, y, z) of node `node`
+    /// (entries per axis `dim`): the layers of its 26 neighbouring cells that
+    /// touch it (a child's from `child_max`/`child_min`, child * 27 +
+    /// layer; a value's bound)
+    void ring(const Int32 &entries, const Int32 &around, uint32_t dim, const UInt32 &node,
+              const UInt32 xyz[3], const Float &child_max, const Float &child_min,
+              const Float &bound, Float &mx, Float &mn) const {
+        namespace dr = drjit;
+        const uint32_t log2 = dim == LOWER_DIM ? 4 : 5, count = dim * dim * dim;
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dz = -1; dz <= 1; ++dz) {
+                    if (!dx && !dy && !dz)
+                        continue;
+                    const int d[3] = { dx, dy, dz };
+                    UInt32 side = dr::zeros<UInt32>(), at = dr::zeros<UInt32>();
+                    for (int a = 0; a < 3; ++a) {
+                        const UInt32 c = xyz[a] + uint32_t(d[a]); // (wraps below 0)
+                        // 0: the node below, 1: this one, 2: the one above
+                        const UInt32 s = dr::select(c == uint32_t(-1), 0u,
+                                                    dr::select(c == dim, 2u, 1u));
+                        side = side * 3u + s;
+                        at = (at << log2) | (c & (dim - 1u));
+                    }
+                    const Int32 node_code = dr::gather<Int32>(around, node * 27u + side);
+                    const Mask in_node = node_code >= 0;
+                    const Int32 code = dr::select(
+                        in_node,
+                        dr::gather<Int32>(entries, UInt32(node_code) * count + at, in_node),
+                        node_code);
+                    const Mask child = code >= 0;
+                    const uint32_t layer = layer_of_direction(dx, dy, dz, false);
+                    const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !child);
+                    const UInt32 ci = UInt32(code) * 27u + layer;
+                    mx = dr::maximum(mx, dr::select(child, dr::gather<Float>(child_max, ci, child), v));
+                    mn = dr::minimum(mn, dr::select(child, dr::gather<Float>(child_min, ci, child), v));
+                }
+    }
+
+    /// Per node of `dim`^3 entries: the max and min over each of its 26
+    /// layers of one entry's thickness (node * 27 + layer; layer 0, the
+    /// whole node, is not computed: no ring reads it), from its children's
+    /// same layers and its tiles' values
+    void node_layers(const Int32 &entries, uint32_t dim, uint32_t nodes, const Float &child_max,
+                     const Float &child_min, const Float &bound, Float &out_max,
+                     Float &out_min) const {
+        namespace dr = drjit;
+        const uint32_t face = dim * dim, log2 = dim == LOWER_DIM ? 4 : 5;
+        const UInt32 lane = dr::arange<UInt32>(nodes * 27u * face);
+        const UInt32 t = lane % face, layer = (lane / face) % 27u, node = lane / (face * 27u);
+        const UInt32 u = t >> log2, w = t & (dim - 1u);
+        const UInt32 part[3] = { layer / 9u, (layer / 3u) % 3u, layer % 3u };
+        const UInt32 alls = dr::select(part[0] == 0u, 1u, 0u) + dr::select(part[1] == 0u, 1u, 0u) +
+                            dr::select(part[2] == 0u, 1u, 0u);
+        // The axes that run along the layer take u and w (the first of two
+        // takes u; the others w: an edge's entries repeat, which max and
+        // min do not mind)
+        const UInt32 free_coord[3] = { dr::select(alls == 2u, u, w),
+                                       dr::select(alls == 2u && part[0] != 0u, u, w), w };
+        UInt32 e = dr::zeros<UInt32>();
+        for (int a = 0; a < 3; ++a)
+            e = (e << log2) | dr::select(part[a] == 0u, free_coord[a],
+                                         dr::select(part[a] == 1u, 0u, dim - 1u));
+        const Int32 code = dr::gather<Int32>(entries, node * (face * dim) + e);
+        const Mask child = code >= 0;
+        const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !child);
+        const UInt32 ci = UInt32(code) * 27u + layer;
+        const Float hi = dr::select(child, dr::gather<Float>(child_max, ci, child), v),
+                    lo = dr::select(child, dr::gather<Float>(child_min, ci, child), v);
+        out_max = dr::block_reduce(ReduceOp::Max, hi, face);
+        out_min = dr::block_reduce(ReduceOp::Min, lo, face);
+    }
+
+    /// Per lower node: its M, its smallest value m, its control's c (a sum,
+    /// / 4096) and L
+    struct Lowers {
+        Float M, m, low;
+        Float64 sum;
+    };
+
+    static UInt32 brick_bits(const Float &M, const Float &m) {
+        namespace dr = drjit;
+        const Float q = 255.f * (m / M);
+        UInt32 r = dr::select(q >= 255.f, 254u, UInt32(dr::select(q >= 0.f, q, 0.f)));
+        r = dr::select(m >= M, 255u, r);
+        return dr::select(!(M > 0.f) || !(m > 0.f), 0u, r);
+    }
+
+    /// child_bound of majorant_table.h, on the backend
+    static Float entry_bound(const Float &M, const UInt32 &q) {
+        namespace dr = drjit;
+        return dr::select(q == 0u, 0.f,
+                          dr::select(M > 0.f, M, 0.f) * (Float(q) * (1.f / 255.f)));
+    }
+
+    /// child_fraction of majorant_table.h: its search starts one step below
+    /// the answer, which is at most two steps further
+    static UInt32 entry_fraction(const Float &M, const Float &r) {
+        namespace dr = drjit;
+        const Float64 want = Float64(r) * (1.0 + 1.0 / 4096.0);
+        const Float64 start = dr::maximum(0.0, dr::floor(255.0 * want / Float64(M)));
+        UInt32 q = UInt32(dr::minimum(start, 255.0));
+        Mask found = q >= 255u;
+        UInt32 out = dr::full<UInt32>(255u, dr::width(q));
+        for (int step = 0; step < 4; ++step) {
+            const Mask ok = !found && q < 255u && Float64(entry_bound(M, q)) >= want;
+            out = dr::select(ok, q, out);
+            found |= ok;
+            q += 1u;
+        }
+        return dr::select(!(r > 0.f) || !(M > 0.f), 0u, out);
+    }
+
+    /// control_bits of majorant_table.h, on the backend
+    template <uint32_t Bits>
+    static UInt32 control(const Float &M, const Float &c, const Float &L) {
+        namespace dr = drjit;
+        constexpr uint32_t top = (1u << Bits) - 1u;
+        const Float64 M64(M);
+        auto frac = [&](const Float &v) {
+            return dr::clip(Float64(v) / M64, 0.0, 1.0) * double(top);
+        };
+        const Float64 fc = frac(c), fl = frac(L);
+        const Float64 tc = dr::floor(fc); // (lround: halves away from 0)
+        const UInt32 qc = UInt32(tc) + dr::select(fc - tc >= 0.5, 1u, 0u);
+        UInt32 ql = UInt32(dr::floor(fl));
+        ql = dr::select(ql == top && !(L >= M), top - 1u, ql);
+        const UInt32 out = (qc << Bits) | dr::minimum(ql, qc);
+        return dr::select(!(M > 0.f) || dr::isinf(M), 0u, out);
+    }
+
+    Lowers lower_nodes(const Leaves &leaves, const Float &bound, float factor, UInt32 &out) const {
+        namespace dr = drjit;
+        const uint32_t n = m_lowers * LOWER_ENTRY_COUNT;
+        // Entries, a lane each, brick by brick (64 lanes a brick)
+        Float r, low, control_low, Rc;
+        Float64 mean;
+        {
+            const UInt32 lane = dr::arange<UInt32>(n);
+            const UInt32 node = lane >> 12, b = (lane >> 6) & 63u, l = lane & 63u;
+            const UInt32 xyz[3] = { ((b >> 4) << 2) | (l >> 4), (((b >> 2) & 3u) << 2) | ((l >> 2) & 3u),
+                                    ((b & 3u) << 2) | (l & 3u) };
+            const UInt32 e = (xyz[0] << 8) | (xyz[1] << 4) | xyz[2];
+            const Int32 code = dr::gather<Int32>(m_lower_entries, (node << 12) + e);
+            const Mask leaf = code >= 0;
+            const UInt32 li = UInt32(code);
+            const Float leaf_max = dr::gather<Float>(leaves.max, li * 27u, leaf);
+            const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !leaf);
+            Float mx = dr::full<Float>(-Inf, n), mn = dr::full<Float>(Inf, n);
+            ring(m_lower_entries, m_lower_around, LOWER_DIM, node, xyz, leaves.max, leaves.min,
+                 bound, mx, mn);
+            r = dr::maximum(dr::select(leaf, leaf_max, v), mx);
+            low = dr::select(leaf, dr::gather<Float>(leaves.low, li, leaf), v);
+            control_low = dr::select(low > 0.f, dr::minimum(low, mn), low);
+            mean = dr::select(leaf,
+                              dr::select(leaf_max > 0.f, dr::gather<Float64>(leaves.mean, li, leaf), 0.0),
+                              Float64(v));
+            Rc = dr::select(!leaf && r > v, r, -Inf);
+            dr::scatter(out, bits(r * factor), li, leaf);
+            dr::eval(r, low, control_low, mean, Rc, out);
+        }
+        // Bricks and nodes
+        const Float brick_M = dr::block_reduce(ReduceOp::Max, r, 64),
+                    brick_low = dr::block_reduce(ReduceOp::Min, low, 64),
+                    brick_control = dr::block_reduce(ReduceOp::Min, control_low, 64);
+        const Float64 brick_sum = dr::block_reduce(ReduceOp::Add, mean, 64);
+        Lowers lw;
+        lw.M = dr::block_reduce(ReduceOp::Max, brick_M, 64);
+        const Float R = dr::block_reduce(ReduceOp::Max, Rc, LOWER_ENTRY_COUNT);
+        lw.m = dr::block_reduce(ReduceOp::Min, brick_low, 64);
+        lw.low = dr::block_reduce(ReduceOp::Min, brick_control, 64);
+        lw.sum = dr::block_reduce(ReduceOp::Add, brick_sum, 64);
+        {
+            const UInt32 node = dr::arange<UInt32>(m_lowers);
+            const UInt32 slot = m_layout.lower_slot + LOWER_SLOTS * node;
+            dr::scatter(out, bits(lw.M * factor), slot);
+            dr::scatter(out, bits(R * factor), slot + 1u);
+            dr::scatter(out, bits(lw.m * factor), slot + 2u);
+            dr::scatter(out, control<16>(lw.M, Float(lw.sum * (1.0 / 4096.0)), lw.low),
+                        slot + LOWER_CONTROL_SLOT);
+        }
+        {
+            const UInt32 brick = dr::arange<UInt32>(m_lowers * 64u);
+            dr::scatter(out, bits(brick_M * factor),
+                        m_layout.lower_slot + LOWER_SLOTS * (brick >> 6) + LOWER_BRICK_M_SLOT +
+                            (brick & 63u));
+        }
+        // Four bricks a word: their m as fractions, their controls
+        {
+            const UInt32 word = dr::arange<UInt32>(m_lowers * 16u);
+            UInt32 fractions = dr::zeros<UInt32>(m_lowers * 16u), controls = fractions;
+            for (uint32_t k = 0; k < 4; ++k) {
+                const UInt32 brick = word * 4u + k;
+                const Float M = dr::gather<Float>(brick_M, brick);
+                fractions |= brick_bits(M, dr::gather<Float>(brick_low, brick)) << (8 * k);
+                controls |= control<4>(M, Float(dr::gather<Float64>(brick_sum, brick) * (1.0 / 64.0)),
+                                       dr::gather<Float>(brick_control, brick))
+                            << (8 * k);
+            }
+            const UInt32 slot = m_layout.lower_slot + LOWER_SLOTS * (word >> 4) + (word & 15u);
+            dr::scatter(out, fractions, slot + LOWER_BRICK_FRACTION_SLOT);
+            dr::scatter(out, controls, slot + LOWER_BRICK_CONTROL_SLOT);
+        }
+        // Four entries a word: their bounds as fractions of their brick's
+        // M, their controls as fractions of those bounds
+        {
+            const UInt32 word = dr::arange<UInt32>(m_lowers * 1024u);
+            const UInt32 node = word >> 10;
+            UInt32 fractions = dr::zeros<UInt32>(m_lowers * 1024u), controls = fractions;
+            for (uint32_t k = 0; k < 4; ++k) {
+                const UInt32 e = ((word & 1023u) << 2) | k;
+                const UInt32 x = e >> 8, y = (e >> 4) & 15u, z = e & 15u;
+                const UInt32 b = ((x >> 2) << 4) | ((y >> 2) << 2) | (z >> 2);
+                const UInt32 at = (node << 12) | (b << 6) | ((x & 3u) << 4) | ((y & 3u) << 2) | (z & 3u);
+                const Float M = dr::gather<Float>(brick_M, (node << 6) | b);
+                const UInt32 q = entry_fraction(M, dr::gather<Float>(r, at));
+                fractions |= q << (8 * k);
+                controls |= control<4>(entry_bound(M, q), Float(dr::gather<Float64>(mean, at)),
+                                       dr::gather<Float>(control_low, at))
+                            << (8 * k);
+            }
+            const UInt32 slot = m_layout.lower_slot + LOWER_SLOTS * node + (word & 1023u);
+            dr::scatter(out, fractions, slot + LOWER_ENTRY_FRACTION_SLOT);
+            dr::scatter(out, controls, slot + LOWER_ENTRY_CONTROL_SLOT);
+        }
+        return lw;
+    }
+
+    /// The upper nodes' slots; returns their M
+    Float upper_nodes(const Lowers &lw, const Float &lower_max, const Float &lower_min,
+                      const Float &bound, float factor, UInt32 &out) const {
+        namespace dr = drjit;
+        const uint32_t count = UPPER_DIM * UPPER_DIM * UPPER_DIM, n = m_uppers * count;
+        const UInt32 lane = dr::arange<UInt32>(n);
+        const UInt32 node = lane >> 15, e = lane & (count - 1u);
+        const UInt32 xyz[3] = { e >> 10, (e >> 5) & 31u, e & 31u };
+        const Int32 code = dr::gather<Int32>(m_upper_entries, lane);
+        const Mask child = code >= 0;
+        const UInt32 ci = UInt32(code);
+        const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !child);
+        Float mx = dr::full<Float>(-Inf, n), mn = dr::full<Float>(Inf, n);
+        ring(m_upper_entries, m_upper_around, UPPER_DIM, node, xyz, lower_max, lower_min, bound,
+             mx, mn);
+        const Float r = dr::maximum(v, mx);
+        // (an index grid's walk reads no tile's value, only R: every tile's
+        // ringed bound raises it)
+        const Float M = dr::block_reduce(ReduceOp::Max,
+                                         dr::select(child, dr::gather<Float>(lw.M, ci, child), r), count),
+                    R = dr::block_reduce(ReduceOp::Max, dr::select(child, -Inf, r), count),
+                    m = dr::block_reduce(ReduceOp::Min,
+                                         dr::select(child, dr::gather<Float>(lw.m, ci, child), v), count),
+                    low = dr::block_reduce(
+                        ReduceOp::Min,
+                        dr::select(child, dr::gather<Float>(lw.low, ci, child),
+                                   dr::select(v > 0.f, dr::minimum(v, mn), v)),
+                        count);
+        const Float64 sum = dr::block_reduce(
+            ReduceOp::Add,
+            dr::select(child, dr::gather<Float64>(lw.sum, ci, child) * (1.0 / 4096.0), Float64(v)),
+            count);
+        const UInt32 slot = m_layout.upper_slot + UPPER_SLOTS * dr::arange<UInt32>(m_uppers);
+        dr::scatter(out, bits(M * factor), slot);
+        dr::scatter(out, bits(R * factor), slot + 1u);
+        dr::scatter(out, bits(m * factor), slot + 2u);
+        dr::scatter(out, control<16>(M, Float(sum * (1.0 / double(count))), low),
+                    slot + UPPER_CONTROL_SLOT);
+        return M;
+    }
+
+    // ---- 6. Root tiles and the background -----------------------------------------
+
+    void tiles(const Float &upper_M, const Float &upper_max, const Float &bound, float factor,
+               UInt32 &out) const {
+        namespace dr = drjit;
+        if (m_tiles > 0) {
+            const UInt32 tile = dr::arange<UInt32>(m_tiles);
+            const Int32 code = dr::gather<Int32>(m_tile_codes, tile);
+            const Mask child = code >= 0;
+            Float e = dr::gather<Float>(bound, UInt32(-1 - code), !child);
+            for (int dx = -1; dx <= 1; ++dx)
+                for (int dy = -1; dy <= 1; ++dy)
+                    for (int dz = -1; dz <= 1; ++dz) {
+                        if (!dx && !dy && !dz)
+                            continue;
+                        const Int32 c = dr::gather<Int32>(m_tile_around,
+                                                          tile * 27u + direction_index(dx, dy, dz),
+                                                          !child);
+                        const Mask upper = c >= 0 && !child;
+                        const Float layer = dr::gather<Float>(
+                            upper_max, UInt32(c) * 27u + layer_of_direction(dx, dy, dz, false), upper);
+                        e = dr::maximum(e, dr::select(upper, layer,
+                                                      dr::gather<Float>(bound, UInt32(-1 - c),
+                                                                        !child && !upper)));
+                    }
+            e = dr::select(child, dr::gather<Float>(upper_M, UInt32(code), child), e);
+            dr::scatter(out, bits(e * factor),
+                        m_layout.tile_slot + dr::gather<UInt32>(m_tile_index, tile));
+        }
+        Float bg = dr::gather<Float>(bound, dr::opaque<UInt32>(m_background_index));
+        if (m_background_pairs > 0) {
+            const UInt32 pair = dr::arange<UInt32>(m_background_pairs);
+            const Int32 code = dr::gather<Int32>(m_background_codes, pair);
+            const Mask upper = code >= 0;
+            const Float layer = dr::select(
+                upper,
+                dr::gather<Float>(upper_max,
+                                  UInt32(code) * 27u + dr::gather<UInt32>(m_background_layers, pair),
+                                  upper),
+                dr::gather<Float>(bound, UInt32(-1 - code), !upper));
+            bg = dr::maximum(bg, dr::max(layer));
+        }
+        dr::scatter(out, bits(bg * factor), dr::opaque<UInt32>(m_layout.background_slot));
+    }
+
+    MajorantTableLayout m_layout;
+    uint32_t m_ring = 1, m_leaves = 0, m_lowers = 0, m_uppers = 0, m_tiles = 0, m_leaf_words = 0,
+             m_background_index = 0, m_background_pairs = 0;
+    Int32 m_lower_entries, m_upper_entries, m_lower_around, m_upper_around, m_tile_codes,
+        m_tile_around, m_background_codes;
+    UInt32 m_tile_index, m_background_layers;
+};
+
+} // namespace nanovdb_drjit
