@@ -587,19 +587,29 @@ TEST_CASE("majorant table: many threads build what one thread builds, bit for bi
 
 /// The backend's rebuild (nanovdb_drjit/majorant_rebuild.h, LLVM) of an
 /// index grid's table from `values`, as MajorantGrid::make writes it
+/// (and its mean bound over `box`, clamped to `clamp`)
 std::vector<uint32_t> rebuilt_table(const ndr::MajorantRebuildPlan &plan,
                                     const std::vector<uint32_t> &words,
                                     const std::vector<float> &values, float background,
-                                    float factor) {
+                                    float factor, const loader::IndexBox &box, float clamp,
+                                    double &mean) {
     using Float = dr::LLVMArray<float>;
     using UInt32 = dr::uint32_array_t<Float>;
     const ndr::MajorantRebuild<Float> rebuild(plan);
     const float bg[3] = { background, background, background };
+    typename ndr::MajorantRebuild<Float>::Box b;
+    for (int a = 0; a < 3; ++a) {
+        b.lo[a] = box.lo[a];
+        b.hi[a] = box.hi[a];
+    }
+    b.clamp = clamp;
+    dr::LLVMArray<double> m;
     const UInt32 table =
         rebuild.table(dr::load<UInt32>(words.data(), words.size()),
-                      dr::load<Float>(values.data(), values.size()), 1, bg, factor);
+                      dr::load<Float>(values.data(), values.size()), 1, bg, factor, &m, &b);
     std::vector<uint32_t> out(dr::width(table));
     dr::store(out.data(), table);
+    mean = m.entry(0);
     return out;
 }
 
@@ -632,39 +642,53 @@ TEST_CASE("majorant table: the backend's rebuild equals the host's, bit for bit"
             loader::make_index_grid(loader::validate_grid(name, words.data(), handle.size()));
         std::vector<uint32_t> index_words((made.bytes.size() + 3) / 4);
         std::memcpy(index_words.data(), made.bytes.data(), made.bytes.size());
-        std::vector<float> values = made.values.values;
-        std::mt19937_64 rng(5);
-        std::uniform_real_distribution<float> u(0.f, 1.f);
-        for (float &x : values) {
-            const float r = u(rng);
-            x = r < 0.1f ? 100.f * x : r < 0.4f ? 0.f : x * 3.f * u(rng);
-        }
-        const float background = made.values.background[0];
-        const loader::ValidatedGrid v = loader::validate_grid(
-            name, index_words.data(), made.bytes.size(),
-            loader::IndexValues{ values.data(), values.size(),
-                                 { background, background, background } });
-        for (int ring : { 1, 2 }) {
-            CAPTURE(ring);
-            std::string why;
-            const std::optional<ndr::MajorantRebuildPlan> plan =
-                loader::majorant_rebuild_plan(v, ring, &why);
-            CAPTURE(why);
-            REQUIRE(plan.has_value());
-            const float factor = 1.f + 0x1p-20f;
-            const std::vector<uint32_t> want = host_table(loader::node_majorants(v, ring), factor),
-                                        got = rebuilt_table(*plan, index_words, values,
-                                                            background, factor);
-            REQUIRE(got.size() == want.size());
-            size_t differ = 0, first = want.size();
-            for (size_t i = 0; i < want.size(); ++i)
-                if (got[i] != want[i]) {
-                    if (differ++ == 0)
-                        first = i;
-                }
-            CAPTURE(first);
-            CHECK(differ == 0);
-            compared += want.size();
+        for (int update = 0; update < 3; ++update) {
+            CAPTURE(update);
+            // 0: raised, zeroed, scaled at random; 1: all one value (nodes of
+            // one bound); 2: all 0
+            std::vector<float> values = made.values.values;
+            std::mt19937_64 rng(5);
+            std::uniform_real_distribution<float> u(0.f, 1.f);
+            for (float &x : values) {
+                const float r = u(rng);
+                x = update == 1 ? 0.5f : update == 2 ? 0.f
+                    : r < 0.1f ? 100.f * x : r < 0.4f ? 0.f : x * 3.f * u(rng);
+            }
+            const float background = update == 0 ? made.values.background[0] : values.empty() ? 0.f : values[0];
+            const loader::ValidatedGrid v = loader::validate_grid(
+                name, index_words.data(), made.bytes.size(),
+                loader::IndexValues{ values.data(), values.size(),
+                                     { background, background, background } });
+            for (int ring : { 1, 2 }) {
+                CAPTURE(ring);
+                std::string why;
+                const std::optional<ndr::MajorantRebuildPlan> plan =
+                    loader::majorant_rebuild_plan(v, ring, &why);
+                CAPTURE(why);
+                REQUIRE(plan.has_value());
+                const float factor = 1.f + 0x1p-20f;
+                const loader::NodeMajorants host = loader::node_majorants(v, ring);
+                const loader::IndexBox box = loader::lookup_box(v.summary(), 1);
+                const float clamp = v.values().max;
+                double mean = 0.0;
+                const std::vector<uint32_t> want = host_table(host, factor),
+                                            got = rebuilt_table(*plan, index_words, values, background,
+                                                                factor, box, clamp, mean);
+                // (the mean bound, to rounding: another order of sums, bounds x
+                // factor / factor)
+                const double mean_want = loader::mean_bound(v, host, box, clamp);
+                CHECK(std::abs(mean - mean_want) <= 1e-6 * mean_want + 1e-30);
+                REQUIRE(got.size() == want.size());
+                size_t differ = 0, first = want.size();
+                for (size_t i = 0; i < want.size(); ++i)
+                    if (got[i] != want[i]) {
+                        if (differ++ == 0)
+                            first = i;
+                    }
+                CAPTURE(first);
+                CHECK(differ == 0);
+                compared += want.size();
+            }
         }
     }
     MESSAGE(compared << " slots compared");

@@ -69,18 +69,35 @@ public:
         m_background_codes = load(p.background_codes);
         m_background_layers =
             drjit::load<UInt32>(p.background_layers.data(), p.background_layers.size());
+        m_lower_origins = load(p.lower_origins);
+        m_upper_origins = load(p.upper_origins);
+        m_tile_origins = load(p.tile_origins);
+        m_lower_parent = drjit::load<UInt32>(p.lower_parent.data(), p.lower_parent.size());
+        m_lower_slow = drjit::load<UInt32>(p.lower_slow.data(), p.lower_slow.size());
+        m_upper_slow = drjit::load<UInt32>(p.upper_slow.data(), p.upper_slow.size());
     }
 
+    /// The box of mean_bound() (voxels, inclusive) and the clamp of its bounds
+    struct Box {
+        int32_t lo[3], hi[3];
+        float clamp;
+    };
+
     bool valid() const { return m_layout.size != 0; }
+    uint32_t background_slot() const { return m_layout.background_slot; }
 
     /// The table's words from the grid's words and its values (`channels`
     /// floats per value index 1, 2, ...; `background`: index 0's)
+    /// `mean` (optional): the loader's mean_bound() over `box` of that
+    /// table (to rounding: from the value slots / factor, summed in another
+    /// order), a JIT variable of one entry
     UInt32 table(const UInt32 &grid, const Float &values, uint32_t channels,
-                 const float background[3], float factor) const {
+                 const float background[3], float factor, Float64 *mean = nullptr,
+                 const Box *box = nullptr) const {
         namespace dr = drjit;
         Float bound, low;
         value_bounds(values, channels, background, bound, low);
-        Leaves leaves = leaf_layers(grid, bound, low);
+        Leaves leaves = leaf_layers(grid, bound, low, channels);
         UInt32 out = dr::full<UInt32>(0xff800000u, m_layout.size); // (-Inf: a slot nobody writes)
         Lowers lowers = lower_nodes(leaves, bound, factor, out);
         Float lower_max, lower_min;
@@ -92,6 +109,8 @@ public:
                     upper_min);
         tiles(upper_M, upper_max, bound, factor, out);
         dr::eval(out);
+        if (mean)
+            *mean = mean_bound(out, bound, *box, factor);
         return out;
     }
 
@@ -156,56 +175,29 @@ private:
         }
     }
 
-    Leaves leaf_layers(const UInt32 &grid, const Float &bound, const Float &low) const {
+    Leaves leaf_layers(const UInt32 &grid, const Float &bound, const Float &low,
+                       uint32_t channels) const {
         namespace dr = drjit;
         const GridTypeConstants &c = GRID_TYPE_CONSTANTS_ONINDEX;
-        // Rows (leaf, x, y): 8 voxels along z, their value indices from the
-        // leaf's mask, first index and prefix sums (PNanoVDB's
+        // Planes (leaf, x): 3 x 3 parts in (y, z), a row of 8 voxels along z
+        // at a time, their value indices from the leaf's mask (its word x
+        // holds the plane), first index and prefix sums (PNanoVDB's
         // pnanovdb_leaf_onindex_get_value_index)
-        Float row_max[3], row_min[3], row_low;
-        Float64 row_sum;
-        {
-            const UInt32 lane = dr::arange<UInt32>(m_leaves * 64u);
-            const UInt32 x = (lane >> 3) & 7u, y = lane & 7u;
-            const UInt32 leaf = m_layout.leaf_begin_word + (lane >> 6) * m_leaf_words;
-            const UInt32 mask_word = leaf + LEAF_OFF_VALUE_MASK / 4 + 2u * x,
-                         table = leaf + c.leaf_off_table / 4;
-            auto u64 = [&](const UInt32 &at) {
-                return UInt64(dr::gather<UInt32>(grid, at)) |
-                       (UInt64(dr::gather<UInt32>(grid, at + 1u)) << 32);
-            };
-            const UInt64 mask = u64(mask_word), prefix = u64(table + ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM / 4);
-            const UInt32 first = dr::gather<UInt32>(grid, table); // (< 2^31: the plan)
-            const UInt64 shift = UInt64(8u * y);
-            const UInt32 byte = UInt32(mask >> shift) & 255u;
-            const UInt32 before =
-                UInt32(dr::popcnt(mask & ((UInt64(1) << shift) - UInt64(1)))) +
-                dr::select(x > 0u,
-                           UInt32((prefix >> UInt64(9u * dr::select(x > 0u, x - 1u, 0u))) & 511u), 0u);
-            const UInt32 base = first + before;
-            for (int k = 0; k < 3; ++k) {
-                row_max[k] = dr::full<Float>(-Inf, m_leaves * 64u);
-                row_min[k] = dr::full<Float>(Inf, m_leaves * 64u);
-            }
-            row_low = dr::full<Float>(Inf, m_leaves * 64u);
-            row_sum = dr::zeros<Float64>(m_leaves * 64u);
-            for (uint32_t z = 0; z < 8; ++z) {
-                const Mask on = ((byte >> z) & 1u) != 0u;
-                const UInt32 index = dr::select(on, base + dr::popcnt(byte & ((1u << z) - 1u)), 0u);
-                const Float b = dr::gather<Float>(bound, index);
-                add_to_parts(z, b, b, row_max, row_min);
-                row_low = dr::minimum(row_low, dr::gather<Float>(low, index));
-                row_sum += Float64(dr::select(dr::isfinite(b), b, 0.f));
-            }
-            schedule(row_max, 3);
-            schedule(row_min, 3);
-            dr::eval(row_low, row_sum);
-        }
-        // Planes (leaf, x): 3 x 3 parts in (y, z)
         Float plane_max[9], plane_min[9], plane_low;
         Float64 plane_sum;
         {
             const UInt32 lane = dr::arange<UInt32>(m_leaves * 8u);
+            const UInt32 x = lane & 7u;
+            const UInt32 leaf = m_layout.leaf_begin_word + (lane >> 3) * m_leaf_words;
+            const UInt32 table = leaf + c.leaf_off_table / 4;
+            auto u64 = [&](const UInt32 &at) {
+                return UInt64(dr::gather<UInt32>(grid, at)) |
+                       (UInt64(dr::gather<UInt32>(grid, at + 1u)) << 32);
+            };
+            const UInt64 mask = u64(leaf + LEAF_OFF_VALUE_MASK / 4 + 2u * x),
+                         prefix = u64(table + ONINDEX_LEAF_TABLE_OFF_PREFIX_SUM / 4);
+            const UInt32 first = dr::gather<UInt32>(grid, table) + // (< 2^31: the plan)
+                dr::select(x > 0u, UInt32((prefix >> UInt64(9u * dr::select(x > 0u, x - 1u, 0u))) & 511u), 0u);
             for (int k = 0; k < 9; ++k) {
                 plane_max[k] = dr::full<Float>(-Inf, m_leaves * 8u);
                 plane_min[k] = dr::full<Float>(Inf, m_leaves * 8u);
@@ -213,21 +205,36 @@ private:
             plane_low = dr::full<Float>(Inf, m_leaves * 8u);
             plane_sum = dr::zeros<Float64>(m_leaves * 8u);
             for (uint32_t y = 0; y < 8; ++y) {
-                const UInt32 row = lane * 8u + y;
+                const UInt32 byte = UInt32(mask >> (8 * y)) & 255u;
+                const UInt32 base =
+                    first + (y == 0 ? UInt32(0u) : UInt32(dr::popcnt(mask & ((uint64_t(1) << (8 * y)) - 1u))));
+                Float row_max[3], row_min[3];
+                for (int k = 0; k < 3; ++k) {
+                    row_max[k] = -Inf;
+                    row_min[k] = Inf;
+                }
+                for (uint32_t z = 0; z < 8; ++z) {
+                    const Mask on = ((byte >> z) & 1u) != 0u;
+                    const UInt32 index =
+                        dr::select(on, base + (z == 0 ? UInt32(0u) : dr::popcnt(byte & ((1u << z) - 1u))), 0u);
+                    const Float b = dr::gather<Float>(bound, index);
+                    add_to_parts(z, b, b, row_max, row_min);
+                    if (channels == 3)
+                        plane_low = dr::minimum(plane_low, dr::gather<Float>(low, index));
+                    plane_sum += Float64(dr::select(dr::isfinite(b), b, 0.f));
+                }
                 for (uint32_t kz = 0; kz < 3; ++kz) {
-                    const Float hi = dr::gather<Float>(row_max[kz], row),
-                                lo = dr::gather<Float>(row_min[kz], row);
                     Float mx[3] = { plane_max[kz], plane_max[3 + kz], plane_max[6 + kz] },
                           mn[3] = { plane_min[kz], plane_min[3 + kz], plane_min[6 + kz] };
-                    add_to_parts(y, hi, lo, mx, mn);
+                    add_to_parts(y, row_max[kz], row_min[kz], mx, mn);
                     for (uint32_t ky = 0; ky < 3; ++ky) {
                         plane_max[3 * ky + kz] = mx[ky];
                         plane_min[3 * ky + kz] = mn[ky];
                     }
                 }
-                plane_low = dr::minimum(plane_low, dr::gather<Float>(row_low, row));
-                plane_sum += dr::gather<Float64>(row_sum, row);
             }
+            if (channels != 3) // (one channel: the smallest is the bound)
+                plane_low = plane_min[0];
             schedule(plane_max, 9);
             schedule(plane_min, 9);
             dr::eval(plane_low, plane_sum);
@@ -310,6 +317,52 @@ private:
                     mx = dr::maximum(mx, dr::select(child, dr::gather<Float>(child_max, ci, child), v));
                     mn = dr::minimum(mn, dr::select(child, dr::gather<Float>(child_min, ci, child), v));
                 }
+    }
+
+    /// The ringed max and min (ring()) of every entry of every node of a
+    /// level, in entry order (node * dim^3 + entry). Most entries of a
+    /// sparse tree are tiles whose 26 neighbours are tiles of their own node:
+    /// theirs is the max and min of the 3^3 tile values around, a separable
+    /// filter (three passes of three); ring() itself runs only on the others
+    /// (`slow`: children, the node's faces, tiles beside a child; the plan's)
+    void rings(const Int32 &entries, const Int32 &around, const UInt32 &slow, uint32_t dim,
+               uint32_t nodes, const Float &child_max, const Float &child_min, const Float &bound,
+               Float &mx, Float &mn) const {
+        namespace dr = drjit;
+        const uint32_t log2 = dim == LOWER_DIM ? 4 : 5, count = dim * dim * dim;
+        const UInt32 lane = dr::arange<UInt32>(nodes * count);
+        {
+            const Int32 code = dr::gather<Int32>(entries, lane);
+            const Float v = dr::gather<Float>(bound, UInt32(-1 - code), code < 0);
+            mx = dr::select(code < 0, v, -Inf);
+            mn = dr::select(code < 0, v, Inf);
+        }
+        for (uint32_t a = 0; a < 3; ++a) {
+            const uint32_t stride = 1u << (log2 * (2 - a));
+            const UInt32 c = (lane >> (log2 * (2 - a))) & (dim - 1u);
+            dr::eval(mx, mn);
+            const Mask below = c > 0u, above = c + 1u < dim;
+            auto side = [&](const Float &v, const UInt32 &at, const Mask &inside, float none) {
+                return dr::select(inside, dr::gather<Float>(v, at, inside), none);
+            };
+            const Float hi = dr::maximum(side(mx, lane - stride, below, -Inf),
+                                         side(mx, lane + stride, above, -Inf)),
+                        lo = dr::minimum(side(mn, lane - stride, below, Inf),
+                                         side(mn, lane + stride, above, Inf));
+            mx = dr::maximum(mx, hi);
+            mn = dr::minimum(mn, lo);
+        }
+        const uint32_t n = uint32_t(dr::width(slow));
+        if (n > 0) {
+            const UInt32 node = slow >> (3 * log2), e = slow & (count - 1u);
+            const UInt32 xyz[3] = { e >> (2 * log2), (e >> log2) & (dim - 1u), e & (dim - 1u) };
+            Float smx = dr::full<Float>(-Inf, n), smn = dr::full<Float>(Inf, n);
+            ring(entries, around, dim, node, xyz, child_max, child_min, bound, smx, smn);
+            dr::eval(mx, mn);
+            dr::scatter(mx, smx, slow);
+            dr::scatter(mn, smn, slow);
+        }
+        dr::eval(mx, mn);
     }
 
     /// Per node of `dim`^3 entries: the max and min over each of its 26
@@ -407,6 +460,9 @@ private:
     Lowers lower_nodes(const Leaves &leaves, const Float &bound, float factor, UInt32 &out) const {
         namespace dr = drjit;
         const uint32_t n = m_lowers * LOWER_ENTRY_COUNT;
+        Float ring_max, ring_min;
+        rings(m_lower_entries, m_lower_around, m_lower_slow, LOWER_DIM, m_lowers, leaves.max,
+              leaves.min, bound, ring_max, ring_min);
         // Entries, a lane each, brick by brick (64 lanes a brick)
         Float r, low, control_low, Rc;
         Float64 mean;
@@ -421,9 +477,8 @@ private:
             const UInt32 li = UInt32(code);
             const Float leaf_max = dr::gather<Float>(leaves.max, li * 27u, leaf);
             const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !leaf);
-            Float mx = dr::full<Float>(-Inf, n), mn = dr::full<Float>(Inf, n);
-            ring(m_lower_entries, m_lower_around, LOWER_DIM, node, xyz, leaves.max, leaves.min,
-                 bound, mx, mn);
+            const Float mx = dr::gather<Float>(ring_max, (node << 12) + e),
+                        mn = dr::gather<Float>(ring_min, (node << 12) + e);
             r = dr::maximum(dr::select(leaf, leaf_max, v), mx);
             low = dr::select(leaf, dr::gather<Float>(leaves.low, li, leaf), v);
             control_low = dr::select(low > 0.f, dr::minimum(low, mn), low);
@@ -507,32 +562,30 @@ private:
         namespace dr = drjit;
         const uint32_t count = UPPER_DIM * UPPER_DIM * UPPER_DIM, n = m_uppers * count;
         const UInt32 lane = dr::arange<UInt32>(n);
-        const UInt32 node = lane >> 15, e = lane & (count - 1u);
-        const UInt32 xyz[3] = { e >> 10, (e >> 5) & 31u, e & 31u };
         const Int32 code = dr::gather<Int32>(m_upper_entries, lane);
         const Mask child = code >= 0;
         const UInt32 ci = UInt32(code);
         const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !child);
-        Float mx = dr::full<Float>(-Inf, n), mn = dr::full<Float>(Inf, n);
-        ring(m_upper_entries, m_upper_around, UPPER_DIM, node, xyz, lower_max, lower_min, bound,
-             mx, mn);
+        Float mx, mn;
+        rings(m_upper_entries, m_upper_around, m_upper_slow, UPPER_DIM, m_uppers, lower_max,
+              lower_min, bound, mx, mn);
         const Float r = dr::maximum(v, mx);
-        // (an index grid's walk reads no tile's value, only R: every tile's
-        // ringed bound raises it)
-        const Float M = dr::block_reduce(ReduceOp::Max,
-                                         dr::select(child, dr::gather<Float>(lw.M, ci, child), r), count),
-                    R = dr::block_reduce(ReduceOp::Max, dr::select(child, -Inf, r), count),
-                    m = dr::block_reduce(ReduceOp::Min,
-                                         dr::select(child, dr::gather<Float>(lw.m, ci, child), v), count),
-                    low = dr::block_reduce(
-                        ReduceOp::Min,
-                        dr::select(child, dr::gather<Float>(lw.low, ci, child),
-                                   dr::select(v > 0.f, dr::minimum(v, mn), v)),
-                        count);
-        const Float64 sum = dr::block_reduce(
-            ReduceOp::Add,
-            dr::select(child, dr::gather<Float64>(lw.sum, ci, child) * (1.0 / 4096.0), Float64(v)),
-            count);
+        // Per entry: what it adds to the node's M, R (an index grid's walk
+        // reads no tile's value, only R: every tile's ringed bound raises
+        // it), m, and control (L, c); evaluated once, for five reductions
+        const Float e_M = dr::select(child, dr::gather<Float>(lw.M, ci, child), r),
+                    e_R = dr::select(child, -Inf, r),
+                    e_m = dr::select(child, dr::gather<Float>(lw.m, ci, child), v),
+                    e_low = dr::select(child, dr::gather<Float>(lw.low, ci, child),
+                                       dr::select(v > 0.f, dr::minimum(v, mn), v));
+        const Float64 e_c =
+            dr::select(child, dr::gather<Float64>(lw.sum, ci, child) * (1.0 / 4096.0), Float64(v));
+        dr::eval(e_M, e_R, e_m, e_low, e_c);
+        const Float M = dr::block_reduce(ReduceOp::Max, e_M, count),
+                    R = dr::block_reduce(ReduceOp::Max, e_R, count),
+                    m = dr::block_reduce(ReduceOp::Min, e_m, count),
+                    low = dr::block_reduce(ReduceOp::Min, e_low, count);
+        const Float64 sum = dr::block_reduce(ReduceOp::Add, e_c, count);
         const UInt32 slot = m_layout.upper_slot + UPPER_SLOTS * dr::arange<UInt32>(m_uppers);
         dr::scatter(out, bits(M * factor), slot);
         dr::scatter(out, bits(R * factor), slot + 1u);
@@ -587,12 +640,116 @@ private:
         dr::scatter(out, bits(bg * factor), dr::opaque<UInt32>(m_layout.background_slot));
     }
 
+    // ---- The mean bound ------------------------------------------------------------
+
+    /// The voxels of `box` that the cube of 2^log2 voxels at o covers
+    static Float64 overlap(const Int32 o[3], uint32_t log2, const Box &box) {
+        namespace dr = drjit;
+        using Int64 = dr::int64_array_t<Float>;
+        Float64 v = 1.0;
+        for (int a = 0; a < 3; ++a) {
+            const Int64 lo = dr::maximum(Int64(o[a]), int64_t(box.lo[a])),
+                        hi = dr::minimum(Int64(o[a]) + ((int64_t(1) << log2) - 1), int64_t(box.hi[a]));
+            v *= dr::select(lo > hi, 0.0, Float64(hi - lo + 1));
+        }
+        return v;
+    }
+
+    /// The loader's mean_bound (src/loader/mean_bound.cpp) on the backend:
+    /// the finest cell's bound, per voxel of the box
+    Float64 mean_bound(const UInt32 &table, const Float &bound, const Box &box, float factor) const {
+        namespace dr = drjit;
+        const float unscale = 1.f / factor;
+        auto slot = [&](const UInt32 &at, const Mask &active = true) {
+            return dr::reinterpret_array<Float>(dr::gather<UInt32>(table, at, active)) * unscale;
+        };
+        auto word = [&](const UInt32 &at) { return dr::gather<UInt32>(table, at); };
+        auto clamped = [&](const Float &b) {
+            return Float64(dr::minimum(dr::maximum(b, 0.f), box.clamp));
+        };
+        auto uniform = [](const Float &M, const Float &m) { return !(M - m > 0.f); };
+        auto origin = [](const Int32 &origins, const UInt32 &i, Int32 o[3]) {
+            for (int a = 0; a < 3; ++a)
+                o[a] = dr::gather<Int32>(origins, 3u * i + a);
+        };
+        Float64 sum = dr::zeros<Float64>(1);
+        // Upper nodes: one bound, or their entries'
+        Mask upper_uniform;
+        {
+            const UInt32 node = dr::arange<UInt32>(m_uppers);
+            const UInt32 at = m_layout.upper_slot + UPPER_SLOTS * node;
+            const Float M = slot(at);
+            Int32 o[3];
+            origin(m_upper_origins, node, o);
+            sum += dr::sum(dr::select(uniform(M, slot(at + 2u)), clamped(M) * overlap(o, 12, box), 0.0));
+        }
+        {
+            const UInt32 lane = dr::arange<UInt32>(m_uppers * 32768u);
+            const UInt32 node = lane >> 15, e = lane & 32767u;
+            const UInt32 at = m_layout.upper_slot + UPPER_SLOTS * node;
+            const Int32 code = dr::gather<Int32>(m_upper_entries, lane);
+            const Mask tile = code < 0 && !uniform(slot(at), slot(at + 2u));
+            Int32 o[3];
+            origin(m_upper_origins, node, o);
+            o[0] += Int32(e >> 10) << 7;
+            o[1] += Int32((e >> 5) & 31u) << 7;
+            o[2] += Int32(e & 31u) << 7;
+            const Float b = dr::maximum(dr::gather<Float>(bound, UInt32(-1 - code), tile), slot(at + 1u, tile));
+            sum += dr::sum(dr::select(tile, clamped(b) * overlap(o, 7, box), 0.0));
+        }
+        // Lower nodes under an upper node of more than one bound: one
+        // bound, a brick's, or their entries'
+        {
+            const UInt32 lane = dr::arange<UInt32>(m_lowers * 4096u);
+            const UInt32 node = lane >> 12, e = lane & 4095u;
+            const UInt32 x = e >> 8, y = (e >> 4) & 15u, z = e & 15u;
+            const UInt32 up = m_layout.upper_slot + UPPER_SLOTS * dr::gather<UInt32>(m_lower_parent, node);
+            const Mask counted = !uniform(slot(up), slot(up + 2u));
+            const UInt32 at = m_layout.lower_slot + LOWER_SLOTS * node;
+            const UInt32 b = ((x >> 2) << 4) | ((y >> 2) << 2) | (z >> 2);
+            const Float M = slot(at), brick = slot(at + LOWER_BRICK_M_SLOT + b);
+            const UInt32 qb = (word(at + LOWER_BRICK_FRACTION_SLOT + (b >> 2)) >> (8u * (b & 3u))) & 255u,
+                         qe = (word(at + LOWER_ENTRY_FRACTION_SLOT + (e >> 2)) >> (8u * (e & 3u))) & 255u;
+            const Float cell = dr::select(
+                uniform(M, slot(at + 2u)), M,
+                dr::select(uniform(brick, brick * (Float(qb) * (1.f / 255.f))), brick,
+                           entry_bound(brick, qe)));
+            Int32 o[3];
+            origin(m_lower_origins, node, o);
+            o[0] += Int32(x) << 3;
+            o[1] += Int32(y) << 3;
+            o[2] += Int32(z) << 3;
+            sum += dr::sum(dr::select(counted, clamped(cell) * overlap(o, 3, box), 0.0));
+        }
+        // Root tiles, and the background beyond them
+        double box_volume = 1.0;
+        for (int a = 0; a < 3; ++a)
+            box_volume *= double(int64_t(box.hi[a]) - box.lo[a] + 1);
+        Float64 covered = dr::zeros<Float64>(1);
+        if (m_tiles > 0) {
+            const UInt32 tile = dr::arange<UInt32>(m_tiles);
+            Int32 o[3];
+            origin(m_tile_origins, tile, o);
+            const Float64 vol = overlap(o, 12, box);
+            covered = dr::sum(vol);
+            const Mask value = dr::gather<Int32>(m_tile_codes, tile) < 0;
+            sum += dr::sum(dr::select(
+                value, clamped(slot(m_layout.tile_slot + dr::gather<UInt32>(m_tile_index, tile))) * vol, 0.0));
+        }
+        const Float64 rest = box_volume - covered;
+        sum += dr::select(rest > 0.0,
+                          clamped(slot(dr::opaque<UInt32>(m_layout.background_slot))) * rest, 0.0);
+        return sum * (1.0 / box_volume);
+    }
+
     MajorantTableLayout m_layout;
     uint32_t m_ring = 1, m_leaves = 0, m_lowers = 0, m_uppers = 0, m_tiles = 0, m_leaf_words = 0,
              m_background_index = 0, m_background_pairs = 0;
     Int32 m_lower_entries, m_upper_entries, m_lower_around, m_upper_around, m_tile_codes,
         m_tile_around, m_background_codes;
     UInt32 m_tile_index, m_background_layers;
+    Int32 m_lower_origins, m_upper_origins, m_tile_origins;
+    UInt32 m_lower_parent, m_lower_slow, m_upper_slow;
 };
 
 } // namespace nanovdb_drjit

@@ -52,6 +52,10 @@ struct MajorantRebuildPlan {
     /// Per lower node, its 16^3 entries: a leaf or a value; per upper node,
     /// its 32^3: a lower node or a value
     std::vector<int32_t> lower_entries, upper_entries;
+    /// The entries (node * entries + entry, ascending) whose ring is not
+    /// the 3^3 tile values around them: children, entries on the node's
+    /// faces, tiles beside a child (majorant_rebuild.h, rings())
+    std::vector<uint32_t> lower_slow, upper_slow;
     /// Per lower (upper) node, 27 codes: what covers the node-sized cell in
     /// each direction (direction_index; 13 is the node itself): a node of
     /// the same level or a value
@@ -64,6 +68,11 @@ struct MajorantRebuildPlan {
     /// reached tiles that touch space no tile covers, and their tile's code
     std::vector<int32_t> background_codes;
     std::vector<uint32_t> background_layers;
+    /// For the mean bound (mean_bound() of the loader): the first voxel
+    /// (x, y, z) of each lower and upper node and of each reached tile, and
+    /// each lower node's upper node
+    std::vector<int32_t> lower_origins, upper_origins, tile_origins;
+    std::vector<uint32_t> lower_parent;
 
     bool empty() const { return layout.size == 0; }
 };

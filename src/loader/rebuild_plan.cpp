@@ -61,6 +61,7 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
                                        std::vector<int32_t>(3 * size_t(p.upper_count)) };
     p.lower_entries.assign(size_t(p.lower_count) * layout::LOWER_TABLE_COUNT, 0);
     p.upper_entries.assign(size_t(p.upper_count) * layout::UPPER_TABLE_COUNT, 0);
+    p.lower_parent.assign(p.lower_count, 0);
 
     // What covers the cell of `level` at ijk, as a code
     auto cover = [&](int level, const int32_t ijk[3]) -> int32_t {
@@ -78,8 +79,10 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
             const uint32_t i = uint32_t(view.node_index(level - 1, child));
             out[e] = int32_t(i);
             ++reached[level - 1][i];
-            if (level == 2)
+            if (level == 2) {
                 view.entry_origin(2, o, e, &origin[1][3 * size_t(i)]);
+                p.lower_parent[i] = uint32_t(view.node_index(2, node));
+            }
         }
     };
     for (uint32_t t : view.tiles()) {
@@ -87,6 +90,7 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
         view.tile_origin(t, o);
         const uint64_t child = view.tile_child(t);
         p.tile_index.push_back(t);
+        p.tile_origins.insert(p.tile_origins.end(), o, o + 3);
         if (child == 0) {
             p.tile_codes.push_back(value(view.tile_value(t)));
         } else {
@@ -123,6 +127,31 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
             if (r != 1)
                 return refuse("a node that lookups reach not once but never or twice");
 
+    // The entries whose ring is more than the tile values around them
+    auto slow = [](const std::vector<int32_t> &entries, uint32_t log2dim, std::vector<uint32_t> &out) {
+        const uint32_t dim = 1u << log2dim, count = dim * dim * dim;
+        for (size_t at = 0; at < entries.size(); ++at) {
+            const size_t node = at / count;
+            const uint32_t e = uint32_t(at % count);
+            const int c[3] = { int(e >> (2 * log2dim)), int((e >> log2dim) & (dim - 1)),
+                               int(e & (dim - 1)) };
+            bool is_slow = entries[at] >= 0;
+            for (int a = 0; a < 3; ++a)
+                is_slow |= c[a] == 0 || c[a] == int(dim) - 1;
+            for (int dx = -1; dx <= 1 && !is_slow; ++dx)
+                for (int dy = -1; dy <= 1 && !is_slow; ++dy)
+                    for (int dz = -1; dz <= 1 && !is_slow; ++dz) {
+                        const uint32_t n = (uint32_t(c[0] + dx) << (2 * log2dim)) |
+                                           (uint32_t(c[1] + dy) << log2dim) | uint32_t(c[2] + dz);
+                        is_slow |= entries[node * count + n] >= 0;
+                    }
+            if (is_slow)
+                out.push_back(uint32_t(at));
+        }
+    };
+    slow(p.lower_entries, layout::LOWER_LOG2_DIM, p.lower_slow);
+    slow(p.upper_entries, layout::UPPER_LOG2_DIM, p.upper_slow);
+
     // The node-sized cells around each internal node
     auto around = [&](int level, uint32_t count, std::vector<int32_t> &out) {
         const uint32_t log2dim = level == 1 ? 7 : 12;
@@ -142,6 +171,8 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
     };
     around(1, p.lower_count, p.lower_around);
     around(2, p.upper_count, p.upper_around);
+    p.lower_origins = std::move(origin[1]);
+    p.upper_origins = std::move(origin[2]);
     return p;
 }
 

@@ -282,6 +282,20 @@ private:
         if (!six)
             tiles = loader::active_tiles(g.grid);
         if (g.grid.is_index_grid()) {
+            // The rebuild of its majorants on the backend after updates
+            // (index_updates.h): a plan of the tree, read here, while the
+            // bytes g.grid views are still those below
+            if constexpr (dr::is_jit_v<Float>) {
+                std::string why;
+                if (auto plan = loader::majorant_rebuild_plan(g.grid, options.majorant_ring, &why)) {
+                    index.rebuild = decltype(index.rebuild)(*plan);
+                    index.rebuild_factor = (1.f + 0x1p-20f) * g.spectral_factor;
+                    index.mean_box = g.box;
+                } else {
+                    Log(Info, "nanovdbvolume: \"%s\": the per-node majorants of updated values "
+                              "are rebuilt on the host (%s)", settings.filename, why);
+                }
+            }
             // The index grid's tree is smaller than the grid it was made
             // from, or than the file's grid with its blind data: a block of
             // its size, so that the backend holds the tree and the values once

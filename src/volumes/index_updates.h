@@ -12,21 +12,27 @@
                          max(), the values' largest (with the background and
                          a given max_value); the per-node majorants are
                          marked stale
-      rebound()          the per-node majorants and max_in_box() again, on
-                         the host, from the values and the tree in place,
-                         through the loader's own passes (rebound_index_grid:
+      rebound()          the per-node majorants again. LLVM and CUDA: on the
+                         backend (nanovdb_drjit/majorant_rebuild.h, from a
+                         plan of the tree made at load), the same table as
+                         the host's, with no host round trip; max() stays
+                         values_changed()'s. Scalar, and a tree the plan
+                         refuses (rebuild_plan.cpp says which): on the host,
+                         from the values and the tree in place, through the
+                         loader's own passes (rebound_index_grid:
                          validation's value statistics, the value policy,
-                         node_majorants, mean_bound); LLVM and scalar read
-                         both in place, CUDA copies the values (its tree's
-                         copy was kept at load). Only the walk (volpathlocal)
-                         reads these bounds, so the plugin calls this when it
-                         next asks for them.
+                         node_majorants, max_in_box, mean_bound); CUDA
+                         copies the values there (its tree's copy was kept
+                         at load). Only the walk (volpathlocal,
+                         prbvolpathlocal) reads these bounds, so the plugin
+                         calls this when it next asks for them.
 */
 
 #pragma once
 
 #include <mitsuba/core/logger.h>
 
+#include <nanovdb_drjit/majorant_rebuild.h>
 #include <nanovdb_drjit/sampler.h>
 #include <nanovdb_loader/load.h>
 
@@ -69,6 +75,16 @@ template <typename Float> struct IndexUpdates {
     /// changes nothing, and bounds nothing again
     uint32_t bounded_index = 0;
     IndexBounds bounded;
+    /// LLVM, CUDA: the rebuild on the backend (invalid: on the host), and
+    /// the factor of its value slots (MajorantGrid::make's)
+    struct NoRebuild {
+        bool valid() const { return false; }
+    };
+    using Detached = drjit::detached_t<Float>;
+    std::conditional_t<drjit::is_jit_v<Float>, nanovdb_drjit::MajorantRebuild<Detached>, NoRebuild>
+        rebuild;
+    float rebuild_factor = 1.f;
+    nanovdb_loader::IndexBox mean_box{}; ///< the box of the mean bound (the load's)
 
     bool active() const { return tree_bytes != 0; }
 
@@ -164,7 +180,8 @@ template <typename Float> struct IndexUpdates {
                 largest[1] = largest[2] = largest[0];
         }
         IndexBounds b;
-        b.max = std::max({ largest[0], largest[1], largest[2], max_value_given });
+        b.grid_max = std::max({ largest[0], largest[1], largest[2] });
+        b.max = std::max({ b.grid_max, max_value_given });
         for (int k = 0; k < 3; ++k)
             b.max3[k] = std::max(largest[k], max_value_given);
         s.set_bounds(b.max, b.max3);
@@ -181,6 +198,36 @@ template <typename Float> struct IndexUpdates {
         namespace loader = nanovdb_loader;
         auto t0 = std::chrono::steady_clock::now();
         auto &values = s.index_values;
+        if constexpr (dr::is_jit_v<Float>) {
+            if (rebuild.valid()) {
+                using UInt32 = dr::uint32_array_t<Detached>;
+                auto &m = s.majorants;
+                typename decltype(rebuild)::Box box;
+                for (int a = 0; a < 3; ++a) {
+                    box.lo[a] = mean_box.lo[a];
+                    box.hi[a] = mean_box.hi[a];
+                }
+                box.clamp = bounded.max;
+                dr::float64_array_t<Detached> mean;
+                m.table = rebuild.table(dr::detach<false>(s.grid), dr::detach<false>(values), s.index_channels,
+                                        background.data(), rebuild_factor, &mean, &box);
+                m.background = dr::reinterpret_array<Detached>(dr::gather<UInt32>(
+                    dr::detach<false>(m.table), dr::opaque<UInt32>(rebuild.background_slot())));
+                m.clamp = dr::opaque<Detached>(bounded.max); // (values_changed()'s max())
+                if (m.clamp_to_box)
+                    m.outside = m.clamp;
+                stale = false;
+                // (the walk's choice between local and global majorants
+                // reads it on the host: one number back)
+                bounded.majorant_ratio =
+                    bounded.max > 0.f ? float(mean.entry(0) / bounded.max) : 1.f;
+                Log(Debug, "nanovdbvolume: \"%s\": per-node majorants of the updated values "
+                           "on the backend in %.2f ms", filename,
+                    std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
+                        .count());
+                return bounded;
+            }
+        }
         size_t count;
         const float *host_values;
         std::vector<float> copy;
