@@ -74,6 +74,10 @@
 
 namespace nanovdb_drjit {
 
+/// The factor of every bound as the walk reads it (MajorantGrid::make):
+/// 1 + 2^-20, for the few ulps by which rounded trilinear weights overshoot
+static constexpr float MAJORANT_SCALE = 1.f + 0x1p-20f;
+
 /// A lower node's bricks: 4^3 bricks of 32^3 voxels (4^3 of its entries)
 static constexpr uint32_t BRICK_LOG2_DIM = 5;
 static constexpr uint32_t LOWER_BRICK_COUNT = 64;

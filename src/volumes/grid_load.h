@@ -65,6 +65,7 @@ struct LoadSettings {
     bool clamp = false;                ///< wrap_mode "clamp": lookups clamped to the box
     nanovdb_loader::InvalidValues invalid_values = nanovdb_loader::InvalidValues::Error;
     bool differentiable = false;       ///< make the grid an index grid ("data")
+    bool rebuild_on_backend = true;    ///< majorant_rebuild: "backend" (true) or "host"
     bool raw = false;                  ///< Vec3f: no spectral conversion
     bool level_set_fog = false;        ///< level_set: "fog" (true) or "distance"
     nanovdb_loader::BlindSelection blind; ///< a file's index grid: its values' channel
@@ -287,11 +288,14 @@ private:
             // bytes g.grid views are still those below
             if constexpr (dr::is_jit_v<Float>) {
                 std::string why;
-                if (auto plan = loader::majorant_rebuild_plan(g.grid, options.majorant_ring, &why)) {
+                std::optional<nanovdb_drjit::MajorantRebuildPlan> plan;
+                if (settings.rebuild_on_backend)
+                    plan = loader::majorant_rebuild_plan(g.grid, options.majorant_ring, &why);
+                if (plan) {
                     index.rebuild = decltype(index.rebuild)(*plan);
-                    index.rebuild_factor = (1.f + 0x1p-20f) * g.spectral_factor;
+                    index.rebuild_factor = nanovdb_drjit::MAJORANT_SCALE * g.spectral_factor;
                     index.mean_box = g.box;
-                } else {
+                } else if (settings.rebuild_on_backend) {
                     Log(Info, "nanovdbvolume: \"%s\": the per-node majorants of updated values "
                               "are rebuilt on the host (%s)", settings.filename, why);
                 }
@@ -311,8 +315,9 @@ private:
             // what an update needs to bound the values again (index_updates.h)
             index.options = options;
             index.volume_box = volume_box;
-            if constexpr (dr::is_cuda_v<Float>) // (the tree stays on the device: a host copy
-                index.tree_host.assign((const uint8_t *) host.get(),  // for parameters_changed)
+            // (the tree stays on the device: a host copy for a rebuild on the host)
+            if (dr::is_cuda_v<Float> && !index.rebuild.valid())
+                index.tree_host.assign((const uint8_t *) host.get(),
                                        (const uint8_t *) host.get() + g.grid_bytes);
             index.tree_bytes = g.grid_bytes;
             index.background = g.grid.index_values().background;

@@ -160,7 +160,21 @@ NanoVDB sparse volume (:monosp:`nanovdbvolume`)
      the order; a Vec3f grid's three channels interleaved: value i at
      ``data[3 i .. 3 i + 2]``; in spectral variants only with
      ``raw=true``). After ``params.update()``, ``max()`` follows the
-     values. (Default: ``false``)
+     values, and so do the per-node majorants that ``volpathlocal`` and
+     ``prbvolpathlocal`` track with (see ``majorant_rebuild``).
+     (Default: ``false``)
+
+ * - majorant_rebuild
+   - |string|
+   - Where the per-node majorants of a differentiable volume are rebuilt
+     after ``params.update()`` changed its values, when a walk next asks
+     for them: ``backend``, on the variant's backend (LLVM, CUDA) from a
+     plan of the tree made at load, with no copy of the values to the
+     host; ``host``, on the host through the loader's own passes (what
+     scalar variants, and a tree the plan cannot take, do). The two build
+     the same table. ``max()`` after an update is the values' largest
+     (with the background and ``max_value``); ``host`` also narrows it to
+     the lookups of the volume's box. (Default: ``backend``)
 
  * - blind_channel, blind_component
    - |string|, |int|

@@ -200,6 +200,10 @@ template <typename Float> struct IndexUpdates {
         auto &values = s.index_values;
         if constexpr (dr::is_jit_v<Float>) {
             if (rebuild.valid()) {
+                // (a walk may first ask inside a loop it traces symbolically:
+                // the rebuild reads nothing of it, and evaluates as outside)
+                dr::scoped_set_flag symbolic(JitFlag::SymbolicScope, false);
+                dr::scoped_disable_symbolic<Detached> unmasked;
                 using UInt32 = dr::uint32_array_t<Detached>;
                 auto &m = s.majorants;
                 typename decltype(rebuild)::Box box;

@@ -90,7 +90,7 @@ SamplerSetup set_up_bounds(nanovdb_drjit::GridSampler<Float> &s, nanovdb_loader:
     for (int k = 0; k < 3; ++k)
         out.cell_base[k] = summary.empty ? 0 : int32_t(uint32_t(summary.bbox_min[k]) & ~4095u);
     s.majorants = nanovdb_drjit::MajorantGrid<UInt32>::make(
-        g.majorants.layout, g.majorants.values, (1.f + 0x1p-20f) * g.spectral_factor, out.max,
+        g.majorants.layout, g.majorants.values, nanovdb_drjit::MAJORANT_SCALE * g.spectral_factor, out.max,
         out.cell_base);
     s.majorants.set_root_tiles(g.majorants.tile_origins, out.cell_base, summary.bbox_min,
                                summary.bbox_max);

@@ -99,6 +99,13 @@ VolumeProperties read_volume_properties(const Properties &props,
               "\"nearest\", \"trilinear\", \"stochastic_trilinear\" or "
               "\"stochastic_tricubic\"", name, filter);
 
+    std::string_view rebuild = props.get<std::string_view>("majorant_rebuild", "backend");
+    if (rebuild == "host")
+        p.load.rebuild_on_backend = false;
+    else if (rebuild != "backend")
+        Throw("nanovdbvolume: \"%s\": invalid value \"%s\" for majorant_rebuild, must be "
+              "one of: \"backend\" or \"host\"", name, rebuild);
+
     std::string_view invalid = props.get<std::string_view>("invalid_values", "error");
     if (invalid == "clamp")
         p.load.invalid_values = nanovdb_loader::InvalidValues::Clamp;
