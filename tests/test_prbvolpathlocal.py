@@ -311,17 +311,22 @@ def test08_non_differentiable_volume_names_the_parameter(ad_rgb, make_grid):
     assert dr.width(mi.traverse(scene)[key]) > 0
 
 
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "cuda_ad_rgb"])
 @pytest.mark.parametrize("name", ["openvdb_smoke1_fog.vdb", "usd_density_heat_fog.vdb",
                                   "warp_vec3f_zip_32.3.3.nvdb", "warp_onindex_2grids_zip_32.6.1.nvdb"])
-def test10_backend_rebuild_equals_the_host_one(ad_rgb, name):
+def test10_backend_rebuild_equals_the_host_one(variant, name):
     """After an update (values raised 100x, set to 0, scaled at random), the
     majorants rebuilt on the backend (majorant_rebuild="backend", the
     default) equal those the loader builds on the host ("host") from the
     same values: real files (float, Vec3f, an index grid's blind data), the
     walk's first tentative collision and its majorant the same, bit for bit,
     on 2 x 10^5 rays; the mean bound (local_majorant_ratio) to 1e-5.
-    (test_majorant_walk checks the table itself, word for word.)"""
+    (test_majorant_walk checks the table itself, word for word, on LLVM.)
+    LLVM, and CUDA where a GPU is (the offline GPU kit)."""
     from conftest import need_shared_data
+    _setup_variant(variant)
+    import nanovdb_mitsuba
+    nanovdb_mitsuba.setup()
     from nanovdb_mitsuba.walk_bridge import WalkBridge, medium_index
     path = need_shared_data(name) / name
     volumes = [mi.load_dict({
@@ -361,3 +366,11 @@ def test10_backend_rebuild_equals_the_host_one(ad_rgb, name):
         assert hit.sum() > n // 10
         np.testing.assert_array_equal(out[0][0], out[1][0])
         np.testing.assert_array_equal(out[0][1], out[1][1])
+
+
+def test11_majorant_rebuild_names_a_bad_choice(ad_rgb):
+    """majorant_rebuild takes "backend" or "host"; another value is refused,
+    named with the choices"""
+    with pytest.raises(RuntimeError, match=r'invalid value "gpu" for majorant_rebuild.*'
+                                           r'"backend" or "host"'):
+        mi.load_dict(dict(ball_volume(), majorant_rebuild="gpu"))

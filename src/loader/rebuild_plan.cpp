@@ -63,6 +63,19 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
     p.upper_entries.assign(size_t(p.upper_count) * layout::UPPER_TABLE_COUNT, 0);
     p.lower_parent.assign(p.lower_count, 0);
 
+    // fn(dx, dy, dz, first voxel) for the 27 cells of 2^log2dim voxels
+    // around (and at) the one whose first voxel is o
+    auto cells_around = [](const int32_t o[3], uint32_t log2dim, auto &&fn) {
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dz = -1; dz <= 1; ++dz) {
+                    const int d[3] = { dx, dy, dz };
+                    int32_t n[3];
+                    for (int a = 0; a < 3; ++a)
+                        n[a] = wrap_add(o[a], int64_t(d[a]) << log2dim);
+                    fn(dx, dy, dz, n);
+                }
+    };
     // What covers the cell of `level` at ijk, as a code
     auto cover = [&](int level, const int32_t ijk[3]) -> int32_t {
         const TreeView::Found f = view.find(level, ijk);
@@ -99,20 +112,14 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
             ++reached[2][u];
             std::copy(o, o + 3, &origin[2][3 * size_t(u)]);
         }
-        for (int dx = -1; dx <= 1; ++dx)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dz = -1; dz <= 1; ++dz) {
-                    const int d[3] = { dx, dy, dz };
-                    int32_t n[3];
-                    for (int a = 0; a < 3; ++a)
-                        n[a] = wrap_add(o[a], int64_t(d[a]) << layout::ROOT_TILE_LOG2);
-                    p.tile_around.push_back(cover(2, n));
-                    uint32_t covering;
-                    if ((dx || dy || dz) && !view.tile_of(n, covering)) {
-                        p.background_codes.push_back(p.tile_codes.back());
-                        p.background_layers.push_back(ndr::layer_of_direction(dx, dy, dz, true));
-                    }
-                }
+        cells_around(o, layout::ROOT_TILE_LOG2, [&](int dx, int dy, int dz, const int32_t n[3]) {
+            p.tile_around.push_back(cover(2, n));
+            uint32_t covering;
+            if ((dx || dy || dz) && !view.tile_of(n, covering)) {
+                p.background_codes.push_back(p.tile_codes.back());
+                p.background_layers.push_back(ndr::layer_of_direction(dx, dy, dz, true));
+            }
+        });
     }
     for (uint32_t u = 0; u < p.upper_count; ++u)
         if (reached[2][u] == 1)
@@ -156,18 +163,9 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
     auto around = [&](int level, uint32_t count, std::vector<int32_t> &out) {
         const uint32_t log2dim = level == 1 ? 7 : 12;
         out.reserve(size_t(count) * 27);
-        for (uint32_t i = 0; i < count; ++i) {
-            const int32_t *o = &origin[level][3 * size_t(i)];
-            for (int dx = -1; dx <= 1; ++dx)
-                for (int dy = -1; dy <= 1; ++dy)
-                    for (int dz = -1; dz <= 1; ++dz) {
-                        const int d[3] = { dx, dy, dz };
-                        int32_t n[3];
-                        for (int a = 0; a < 3; ++a)
-                            n[a] = wrap_add(o[a], int64_t(d[a]) << log2dim);
-                        out.push_back(cover(level, n));
-                    }
-        }
+        for (uint32_t i = 0; i < count; ++i)
+            cells_around(&origin[level][3 * size_t(i)], log2dim,
+                         [&](int, int, int, const int32_t n[3]) { out.push_back(cover(level, n)); });
     };
     around(1, p.lower_count, p.lower_around);
     around(2, p.upper_count, p.upper_around);
