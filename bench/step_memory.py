@@ -59,7 +59,8 @@ def measure(spec):
         volume = mi.load_dict({"type": "gridvolume", "filename": path})
     else:
         volume = mi.load_dict({"type": "nanovdbvolume", "filename": path,
-                               "differentiable": True})
+                               "differentiable": True,
+                               "majorant_rebuild": spec.get("majorant_rebuild", "backend")})
     desc = turntable_scene(volume, 32, 4, spec.get("integrator", "prbvolpath"))
     desc["integrator"]["max_depth"] = 4
     for i in range(1, 8):
@@ -86,6 +87,7 @@ def measure(spec):
         dr.eval()
         step_s = time.perf_counter() - t
     return dict(volume=os.path.abspath(path), integrator=spec.get("integrator", "prbvolpath"),
+                majorant_rebuild=spec.get("majorant_rebuild", "backend"),
                 plugin="gridvolume" if path.endswith(".vol") else "nanovdbvolume",
                 values=int(values), file_bytes=os.path.getsize(path),
                 rss_start=rss0, rss_loaded=rss_loaded, peak_rss=peak_rss(),
@@ -162,6 +164,9 @@ def main():
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--integrator", default="prbvolpath", choices=["prbvolpath", "prbvolpathlocal"],
                     help="the differentiable integrator of the step")
+    ap.add_argument("--majorant-rebuild", default="backend", choices=["backend", "host"],
+                    help="nanovdbvolume's majorant_rebuild (where prbvolpathlocal's "
+                         "majorants follow the update)")
     ap.add_argument("--build", default="", help="a build folder holding plugins/")
     ap.add_argument("--memory-gb", type=float, default=24.0)
     ap.add_argument("--stop-gb", type=float, default=21.0,
@@ -172,7 +177,8 @@ def main():
         sweep(a)
     elif a.volume:  # (in this process)
         print(json.dumps(measure(dict(volume=a.volume, variant=a.variant, build=a.build,
-                                      integrator=a.integrator))))
+                                      integrator=a.integrator,
+                                      majorant_rebuild=a.majorant_rebuild))))
     else:
         ap.error("give --volume or --sweep")
 

@@ -100,7 +100,7 @@ public:
                  const float background[3], float factor, Float64 *mean = nullptr,
                  const Box *box = nullptr) const {
         namespace dr = drjit;
-        Float bound, low;
+        Bounds bound, low;
         value_bounds(values, channels, background, bound, low);
         Leaves leaves = leaf_layers(grid, bound, low, channels);
         UInt32 out = dr::full<UInt32>(0xff800000u, m_layout.size); // (-Inf: a slot nobody writes)
@@ -131,28 +131,46 @@ private:
             drjit::schedule(v[k]);
     }
 
-    /// Per value index: its bound (largest channel) and smallest channel
+    /// Per value index (0: the background), a bound: its largest channel,
+    /// or its smallest. One channel: the values themselves, read in place
+    struct Bounds {
+        Float array;
+        bool shifted = false; ///< array[i - 1] is index i's; `background` index 0's
+        float background = 0.f;
+
+        Float at(const UInt32 &index, const Mask &active = true) const {
+            namespace dr = drjit;
+            if (!shifted)
+                return dr::gather<Float>(array, index, active);
+            const Mask stored = index != 0u;
+            return dr::select(stored, dr::gather<Float>(array, index - 1u, active && stored),
+                              background);
+        }
+    };
+
     static void value_bounds(const Float &values, uint32_t channels, const float background[3],
-                             Float &bound, Float &low) {
+                             Bounds &bound, Bounds &low) {
         namespace dr = drjit;
+        if (channels != 3) {
+            bound = low = Bounds{ values, true, background[0] };
+            return;
+        }
         const uint32_t count = uint32_t(dr::width(values) / channels);
         const UInt32 index = dr::arange<UInt32>(count + 1);
         const Mask stored = index > 0u;
         const UInt32 first = channels * (index - 1u);
         Float hi = dr::gather<Float>(values, first, stored), lo = hi;
         float bg_hi = background[0], bg_lo = background[0];
-        if (channels == 3) {
-            for (uint32_t k = 1; k < 3; ++k) {
-                const Float c = dr::gather<Float>(values, first + k, stored);
-                hi = dr::maximum(hi, c);
-                lo = dr::minimum(lo, c);
-                bg_hi = std::max(bg_hi, background[k]);
-                bg_lo = std::min(bg_lo, background[k]);
-            }
+        for (uint32_t k = 1; k < 3; ++k) {
+            const Float c = dr::gather<Float>(values, first + k, stored);
+            hi = dr::maximum(hi, c);
+            lo = dr::minimum(lo, c);
+            bg_hi = std::max(bg_hi, background[k]);
+            bg_lo = std::min(bg_lo, background[k]);
         }
-        bound = dr::select(stored, hi, bg_hi);
-        low = dr::select(stored, lo, bg_lo);
-        dr::eval(bound, low);
+        bound = Bounds{ dr::select(stored, hi, bg_hi) };
+        low = Bounds{ dr::select(stored, lo, bg_lo) };
+        dr::eval(bound.array, low.array);
     }
 
     // ---- 2. The leaves' layers ----------------------------------------------------
@@ -180,8 +198,9 @@ private:
         }
     }
 
-    Leaves leaf_layers(const UInt32 &grid, const Float &bound, const Float &low,
-                       uint32_t channels) const {
+    /// Leaves [first, first + count) into `out` (allocated for all)
+    void leaf_layers(const UInt32 &grid, const Bounds &bound, const Bounds &low, uint32_t channels,
+                     uint32_t first_leaf, uint32_t count, Leaves &out) const {
         namespace dr = drjit;
         const GridTypeConstants &c = GRID_TYPE_CONSTANTS_ONINDEX;
         // Planes (leaf, x): 3 x 3 parts in (y, z), a row of 8 voxels along z
@@ -191,9 +210,9 @@ private:
         Float plane_max[9], plane_min[9], plane_low;
         Float64 plane_sum;
         {
-            const UInt32 lane = dr::arange<UInt32>(m_leaves * 8u);
+            const UInt32 lane = dr::arange<UInt32>(count * 8u);
             const UInt32 x = lane & 7u;
-            const UInt32 leaf = m_layout.leaf_begin_word + (lane >> 3) * m_leaf_words;
+            const UInt32 leaf = m_layout.leaf_begin_word + (first_leaf + (lane >> 3)) * m_leaf_words;
             const UInt32 table = leaf + c.leaf_off_table / 4;
             auto u64 = [&](const UInt32 &at) {
                 return UInt64(dr::gather<UInt32>(grid, at)) |
@@ -204,11 +223,11 @@ private:
             const UInt32 first = dr::gather<UInt32>(grid, table) + // (< 2^31: the plan)
                 dr::select(x > 0u, UInt32((prefix >> UInt64(9u * dr::select(x > 0u, x - 1u, 0u))) & 511u), 0u);
             for (int k = 0; k < 9; ++k) {
-                plane_max[k] = dr::full<Float>(-Inf, m_leaves * 8u);
-                plane_min[k] = dr::full<Float>(Inf, m_leaves * 8u);
+                plane_max[k] = dr::full<Float>(-Inf, count * 8u);
+                plane_min[k] = dr::full<Float>(Inf, count * 8u);
             }
-            plane_low = dr::full<Float>(Inf, m_leaves * 8u);
-            plane_sum = dr::zeros<Float64>(m_leaves * 8u);
+            plane_low = dr::full<Float>(Inf, count * 8u);
+            plane_sum = dr::zeros<Float64>(count * 8u);
             for (uint32_t y = 0; y < 8; ++y) {
                 const UInt32 byte = UInt32(mask >> (8 * y)) & 255u;
                 const UInt32 base =
@@ -222,10 +241,10 @@ private:
                     const Mask on = ((byte >> z) & 1u) != 0u;
                     const UInt32 index =
                         dr::select(on, base + (z == 0 ? UInt32(0u) : dr::popcnt(byte & ((1u << z) - 1u))), 0u);
-                    const Float b = dr::gather<Float>(bound, index);
+                    const Float b = bound.at(index);
                     add_to_parts(z, b, b, row_max, row_min);
                     if (channels == 3)
-                        plane_low = dr::minimum(plane_low, dr::gather<Float>(low, index));
+                        plane_low = dr::minimum(plane_low, low.at(index));
                     plane_sum += Float64(dr::select(dr::isfinite(b), b, 0.f));
                 }
                 for (uint32_t kz = 0; kz < 3; ++kz) {
@@ -245,41 +264,53 @@ private:
             dr::eval(plane_low, plane_sum);
         }
         // Leaves: 27 layers
-        Leaves out;
-        {
-            const UInt32 leaf = dr::arange<UInt32>(m_leaves);
-            Float mx[27], mn[27];
-            for (int k = 0; k < 27; ++k) {
-                mx[k] = dr::full<Float>(-Inf, m_leaves);
-                mn[k] = dr::full<Float>(Inf, m_leaves);
-            }
-            out.low = dr::full<Float>(Inf, m_leaves);
-            Float64 sum = dr::zeros<Float64>(m_leaves);
-            for (uint32_t x = 0; x < 8; ++x) {
-                const UInt32 plane = leaf * 8u + x;
-                for (uint32_t kyz = 0; kyz < 9; ++kyz) {
-                    const Float hi = dr::gather<Float>(plane_max[kyz], plane),
-                                lo = dr::gather<Float>(plane_min[kyz], plane);
-                    Float a[3] = { mx[kyz], mx[9 + kyz], mx[18 + kyz] },
-                          b[3] = { mn[kyz], mn[9 + kyz], mn[18 + kyz] };
-                    add_to_parts(x, hi, lo, a, b);
-                    for (uint32_t kx = 0; kx < 3; ++kx) {
-                        mx[9 * kx + kyz] = a[kx];
-                        mn[9 * kx + kyz] = b[kx];
-                    }
-                }
-                out.low = dr::minimum(out.low, dr::gather<Float>(plane_low, plane));
-                sum += dr::gather<Float64>(plane_sum, plane);
-            }
-            out.mean = sum * (1.0 / 512.0);
-            out.max = dr::zeros<Float>(m_leaves * 27u);
-            out.min = dr::zeros<Float>(m_leaves * 27u);
-            for (uint32_t k = 0; k < 27; ++k) {
-                dr::scatter(out.max, mx[k], leaf * 27u + k);
-                dr::scatter(out.min, mn[k], leaf * 27u + k);
-            }
-            dr::eval(out.max, out.min, out.low, out.mean);
+        const UInt32 leaf = dr::arange<UInt32>(count);
+        Float mx[27], mn[27], low_out = Inf;
+        for (int k = 0; k < 27; ++k) {
+            mx[k] = -Inf;
+            mn[k] = Inf;
         }
+        Float64 sum = 0.0;
+        for (uint32_t x = 0; x < 8; ++x) {
+            const UInt32 plane = leaf * 8u + x;
+            for (uint32_t kyz = 0; kyz < 9; ++kyz) {
+                const Float hi = dr::gather<Float>(plane_max[kyz], plane),
+                            lo = dr::gather<Float>(plane_min[kyz], plane);
+                Float a[3] = { mx[kyz], mx[9 + kyz], mx[18 + kyz] },
+                      b[3] = { mn[kyz], mn[9 + kyz], mn[18 + kyz] };
+                add_to_parts(x, hi, lo, a, b);
+                for (uint32_t kx = 0; kx < 3; ++kx) {
+                    mx[9 * kx + kyz] = a[kx];
+                    mn[9 * kx + kyz] = b[kx];
+                }
+            }
+            low_out = dr::minimum(low_out, dr::gather<Float>(plane_low, plane));
+            sum += dr::gather<Float64>(plane_sum, plane);
+        }
+        const UInt32 at = first_leaf + leaf;
+        for (uint32_t k = 0; k < 27; ++k) {
+            dr::scatter(out.max, mx[k], at * 27u + k);
+            dr::scatter(out.min, mn[k], at * 27u + k);
+        }
+        dr::scatter(out.low, low_out, at);
+        dr::scatter(out.mean, sum * (1.0 / 512.0), at);
+        dr::eval(out.max, out.min, out.low, out.mean);
+    }
+
+    /// The leaves' layers, in chunks of at most LEAF_CHUNK leaves (the
+    /// planes' arrays, 84 bytes a plane, stay below 45 MB)
+    static constexpr uint32_t LEAF_CHUNK = 1u << 16;
+    Leaves leaf_layers(const UInt32 &grid, const Bounds &bound, const Bounds &low,
+                       uint32_t channels) const {
+        namespace dr = drjit;
+        Leaves out;
+        out.max = dr::zeros<Float>(m_leaves * 27u);
+        out.min = dr::zeros<Float>(m_leaves * 27u);
+        out.low = dr::zeros<Float>(m_leaves);
+        out.mean = dr::zeros<Float64>(m_leaves);
+        for (uint32_t first = 0; first < m_leaves; first += LEAF_CHUNK)
+            leaf_layers(grid, bound, low, channels, first, std::min(LEAF_CHUNK, m_leaves - first),
+                        out);
         return out;
     }
 
@@ -291,7 +322,7 @@ private:
     /// layer; a value's bound)
     void ring(const Int32 &entries, const Int32 &around, uint32_t dim, const UInt32 &node,
               const UInt32 xyz[3], const Float &child_max, const Float &child_min,
-              const Float &bound, Float &mx, Float &mn) const {
+              const Bounds &bound, Float &mx, Float &mn) const {
         namespace dr = drjit;
         const uint32_t log2 = dim == LOWER_DIM ? 4 : 5, count = dim * dim * dim;
         for (int dx = -1; dx <= 1; ++dx)
@@ -317,7 +348,7 @@ private:
                         node_code);
                     const Mask child = code >= 0;
                     const uint32_t layer = layer_of_direction(dx, dy, dz, false);
-                    const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !child);
+                    const Float v = bound.at(UInt32(-1 - code), !child);
                     const UInt32 ci = UInt32(code) * 27u + layer;
                     mx = dr::maximum(mx, dr::select(child, dr::gather<Float>(child_max, ci, child), v));
                     mn = dr::minimum(mn, dr::select(child, dr::gather<Float>(child_min, ci, child), v));
@@ -331,14 +362,14 @@ private:
     /// filter (three passes of three); ring() itself runs only on the others
     /// (`slow`: children, the node's faces, tiles beside a child; the plan's)
     void rings(const Int32 &entries, const Int32 &around, const UInt32 &slow, uint32_t dim,
-               uint32_t nodes, const Float &child_max, const Float &child_min, const Float &bound,
+               uint32_t nodes, const Float &child_max, const Float &child_min, const Bounds &bound,
                Float &mx, Float &mn) const {
         namespace dr = drjit;
         const uint32_t log2 = dim == LOWER_DIM ? 4 : 5, count = dim * dim * dim;
         const UInt32 lane = dr::arange<UInt32>(nodes * count);
         {
             const Int32 code = dr::gather<Int32>(entries, lane);
-            const Float v = dr::gather<Float>(bound, UInt32(-1 - code), code < 0);
+            const Float v = bound.at(UInt32(-1 - code), code < 0);
             mx = dr::select(code < 0, v, -Inf);
             mn = dr::select(code < 0, v, Inf);
         }
@@ -375,7 +406,7 @@ private:
     /// whole node, is not computed: no ring reads it), from its children's
     /// same layers and its tiles' values
     void node_layers(const Int32 &entries, uint32_t dim, uint32_t nodes, const Float &child_max,
-                     const Float &child_min, const Float &bound, Float &out_max,
+                     const Float &child_min, const Bounds &bound, Float &out_max,
                      Float &out_min) const {
         namespace dr = drjit;
         const uint32_t face = dim * dim, log2 = dim == LOWER_DIM ? 4 : 5;
@@ -396,7 +427,7 @@ private:
                                          dr::select(part[a] == 1u, 0u, dim - 1u));
         const Int32 code = dr::gather<Int32>(entries, node * (face * dim) + e);
         const Mask child = code >= 0;
-        const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !child);
+        const Float v = bound.at(UInt32(-1 - code), !child);
         const UInt32 ci = UInt32(code) * 27u + layer;
         const Float hi = dr::select(child, dr::gather<Float>(child_max, ci, child), v),
                     lo = dr::select(child, dr::gather<Float>(child_min, ci, child), v);
@@ -462,7 +493,7 @@ private:
         return dr::select(!(M > 0.f) || dr::isinf(M), 0u, out);
     }
 
-    Lowers lower_nodes(const Leaves &leaves, const Float &bound, float factor, UInt32 &out) const {
+    Lowers lower_nodes(const Leaves &leaves, const Bounds &bound, float factor, UInt32 &out) const {
         namespace dr = drjit;
         const uint32_t n = m_lowers * LOWER_ENTRY_COUNT;
         Float ring_max, ring_min;
@@ -481,7 +512,7 @@ private:
             const Mask leaf = code >= 0;
             const UInt32 li = UInt32(code);
             const Float leaf_max = dr::gather<Float>(leaves.max, li * 27u, leaf);
-            const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !leaf);
+            const Float v = bound.at(UInt32(-1 - code), !leaf);
             const Float mx = dr::gather<Float>(ring_max, (node << 12) + e),
                         mn = dr::gather<Float>(ring_min, (node << 12) + e);
             r = dr::maximum(dr::select(leaf, leaf_max, v), mx);
@@ -563,14 +594,14 @@ private:
 
     /// The upper nodes' slots; returns their M
     Float upper_nodes(const Lowers &lw, const Float &lower_max, const Float &lower_min,
-                      const Float &bound, float factor, UInt32 &out) const {
+                      const Bounds &bound, float factor, UInt32 &out) const {
         namespace dr = drjit;
         const uint32_t count = UPPER_DIM * UPPER_DIM * UPPER_DIM, n = m_uppers * count;
         const UInt32 lane = dr::arange<UInt32>(n);
         const Int32 code = dr::gather<Int32>(m_upper_entries, lane);
         const Mask child = code >= 0;
         const UInt32 ci = UInt32(code);
-        const Float v = dr::gather<Float>(bound, UInt32(-1 - code), !child);
+        const Float v = bound.at(UInt32(-1 - code), !child);
         Float mx, mn;
         rings(m_upper_entries, m_upper_around, m_upper_slow, UPPER_DIM, m_uppers, lower_max,
               lower_min, bound, mx, mn);
@@ -602,14 +633,14 @@ private:
 
     // ---- 6. Root tiles and the background -----------------------------------------
 
-    void tiles(const Float &upper_M, const Float &upper_max, const Float &bound, float factor,
+    void tiles(const Float &upper_M, const Float &upper_max, const Bounds &bound, float factor,
                UInt32 &out) const {
         namespace dr = drjit;
         if (m_tiles > 0) {
             const UInt32 tile = dr::arange<UInt32>(m_tiles);
             const Int32 code = dr::gather<Int32>(m_tile_codes, tile);
             const Mask child = code >= 0;
-            Float e = dr::gather<Float>(bound, UInt32(-1 - code), !child);
+            Float e = bound.at(UInt32(-1 - code), !child);
             for (int dx = -1; dx <= 1; ++dx)
                 for (int dy = -1; dy <= 1; ++dy)
                     for (int dz = -1; dz <= 1; ++dz) {
@@ -622,14 +653,14 @@ private:
                         const Float layer = dr::gather<Float>(
                             upper_max, UInt32(c) * 27u + layer_of_direction(dx, dy, dz, false), upper);
                         e = dr::maximum(e, dr::select(upper, layer,
-                                                      dr::gather<Float>(bound, UInt32(-1 - c),
+                                                      bound.at(UInt32(-1 - c),
                                                                         !child && !upper)));
                     }
             e = dr::select(child, dr::gather<Float>(upper_M, UInt32(code), child), e);
             dr::scatter(out, bits(e * factor),
                         m_layout.tile_slot + dr::gather<UInt32>(m_tile_index, tile));
         }
-        Float bg = dr::gather<Float>(bound, dr::opaque<UInt32>(m_background_index));
+        Float bg = bound.at(dr::opaque<UInt32>(m_background_index));
         if (m_background_pairs > 0) {
             const UInt32 pair = dr::arange<UInt32>(m_background_pairs);
             const Int32 code = dr::gather<Int32>(m_background_codes, pair);
@@ -639,7 +670,7 @@ private:
                 dr::gather<Float>(upper_max,
                                   UInt32(code) * 27u + dr::gather<UInt32>(m_background_layers, pair),
                                   upper),
-                dr::gather<Float>(bound, UInt32(-1 - code), !upper));
+                bound.at(UInt32(-1 - code), !upper));
             bg = dr::maximum(bg, dr::max(layer));
         }
         dr::scatter(out, bits(bg * factor), dr::opaque<UInt32>(m_layout.background_slot));
@@ -662,15 +693,18 @@ private:
 
     /// The loader's mean_bound (src/loader/mean_bound.cpp) on the backend:
     /// the finest cell's bound, per voxel of the box
-    Float64 mean_bound(const UInt32 &table, const Float &bound, const Box &box, float factor) const {
+    Float64 mean_bound(const UInt32 &table, const Bounds &bound, const Box &box, float factor) const {
         namespace dr = drjit;
         const float unscale = 1.f / factor;
         auto slot = [&](const UInt32 &at, const Mask &active = true) {
             return dr::reinterpret_array<Float>(dr::gather<UInt32>(table, at, active)) * unscale;
         };
         auto word = [&](const UInt32 &at) { return dr::gather<UInt32>(table, at); };
+        // (opaque: max() changes with every update, and a literal would make
+        // every update's kernels new ones, compiled again)
+        const Float clamp = dr::opaque<Float>(box.clamp);
         auto clamped = [&](const Float &b) {
-            return Float64(dr::minimum(dr::maximum(b, 0.f), box.clamp));
+            return Float64(dr::minimum(dr::maximum(b, 0.f), clamp));
         };
         auto uniform = [](const Float &M, const Float &m) { return !(M - m > 0.f); };
         auto origin = [](const Int32 &origins, const UInt32 &i, Int32 o[3]) {
@@ -699,7 +733,7 @@ private:
             o[0] += Int32(e >> 10) << 7;
             o[1] += Int32((e >> 5) & 31u) << 7;
             o[2] += Int32(e & 31u) << 7;
-            const Float b = dr::maximum(dr::gather<Float>(bound, UInt32(-1 - code), tile), slot(at + 1u, tile));
+            const Float b = dr::maximum(bound.at(UInt32(-1 - code), tile), slot(at + 1u, tile));
             sum += dr::sum(dr::select(tile, clamped(b) * overlap(o, 7, box), 0.0));
         }
         // Lower nodes under an upper node of more than one bound: one
