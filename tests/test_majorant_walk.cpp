@@ -592,10 +592,10 @@ std::vector<uint32_t> rebuilt_table(const ndr::MajorantRebuildPlan &plan,
                                     const std::vector<uint32_t> &words,
                                     const std::vector<float> &values, float background,
                                     float factor, const loader::IndexBox &box, float clamp,
-                                    double &mean) {
+                                    double &mean, uint32_t leaf_chunk, uint32_t lower_chunk) {
     using Float = dr::LLVMArray<float>;
     using UInt32 = dr::uint32_array_t<Float>;
-    const ndr::MajorantRebuild<Float> rebuild(plan);
+    const ndr::MajorantRebuild<Float> rebuild(plan, leaf_chunk, lower_chunk);
     const float bg[3] = { background, background, background };
     typename ndr::MajorantRebuild<Float>::Box b;
     for (int a = 0; a < 3; ++a) {
@@ -671,9 +671,14 @@ TEST_CASE("majorant table: the backend's rebuild equals the host's, bit for bit"
                 const loader::IndexBox box = loader::lookup_box(v.summary(), 1);
                 const float clamp = v.values().max;
                 double mean = 0.0;
+                // (ring 2: 7 leaves and 1 lower node a pass, so that the
+                // passes must join; ring 1: the defaults)
+                const bool small_chunks = ring == 2;
                 const std::vector<uint32_t> want = host_table(host, factor),
                                             got = rebuilt_table(*plan, index_words, values, background,
-                                                                factor, box, clamp, mean);
+                                                                factor, box, clamp, mean,
+                                                                small_chunks ? 7u : 1u << 16,
+                                                                small_chunks ? 1u : 256u);
                 // (the mean bound, to rounding: another order of sums, bounds x
                 // factor / factor)
                 const double mean_want = loader::mean_bound(v, host, box, clamp);

@@ -42,8 +42,10 @@
 
 #include <drjit/jit.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <limits>
+#include <vector>
 
 namespace nanovdb_drjit {
 
@@ -59,11 +61,22 @@ template <typename Float> class MajorantRebuild {
 public:
     MajorantRebuild() = default;
 
-    explicit MajorantRebuild(const MajorantRebuildPlan &p)
-        : m_layout(p.layout), m_ring(p.ring), m_leaves(p.leaf_count), m_lowers(p.lower_count),
+    /// `leaf_chunk`, `lower_chunk`: leaves and lower nodes per pass (the
+    /// defaults bound a pass's arrays to about 45 MB; the tests take small
+    /// ones, to see the chunks join)
+    explicit MajorantRebuild(const MajorantRebuildPlan &p, uint32_t leaf_chunk = 1u << 16,
+                             uint32_t lower_chunk = 256)
+        : m_leaf_chunk(std::max(leaf_chunk, 1u)), m_lower_chunk(std::max(lower_chunk, 1u)),
+          m_layout(p.layout), m_ring(p.ring), m_leaves(p.leaf_count), m_lowers(p.lower_count),
           m_uppers(p.upper_count), m_tiles(uint32_t(p.tile_index.size())),
-          m_leaf_words(p.leaf_words), m_background_index(p.background_index),
+          m_background_index(p.background_index),
           m_background_pairs(uint32_t(p.background_codes.size())) {
+        m_at.leaf_begin = drjit::opaque<UInt32>(p.layout.leaf_begin_word);
+        m_at.leaf_words = drjit::opaque<UInt32>(p.leaf_words);
+        m_at.lower_slot = drjit::opaque<UInt32>(p.layout.lower_slot);
+        m_at.upper_slot = drjit::opaque<UInt32>(p.layout.upper_slot);
+        m_at.tile_slot = drjit::opaque<UInt32>(p.layout.tile_slot);
+        m_at.background_slot = drjit::opaque<UInt32>(p.layout.background_slot);
         m_lower_entries = load(p.lower_entries);
         m_upper_entries = load(p.upper_entries);
         m_lower_around = load(p.lower_around);
@@ -79,6 +92,11 @@ public:
         m_tile_origins = load(p.tile_origins);
         m_lower_parent = drjit::load<UInt32>(p.lower_parent.data(), p.lower_parent.size());
         m_lower_slow = drjit::load<UInt32>(p.lower_slow.data(), p.lower_slow.size());
+        for (uint32_t first = 0; first < m_lowers; first += m_lower_chunk)
+            m_lower_slow_begin.push_back(uint32_t(
+                std::lower_bound(p.lower_slow.begin(), p.lower_slow.end(), first * LOWER_ENTRY_COUNT) -
+                p.lower_slow.begin()));
+        m_lower_slow_begin.push_back(uint32_t(p.lower_slow.size()));
         m_upper_slow = drjit::load<UInt32>(p.upper_slow.data(), p.upper_slow.size());
     }
 
@@ -136,7 +154,7 @@ private:
     struct Bounds {
         Float array;
         bool shifted = false; ///< array[i - 1] is index i's; `background` index 0's
-        float background = 0.f;
+        Float background;
 
         Float at(const UInt32 &index, const Mask &active = true) const {
             namespace dr = drjit;
@@ -152,7 +170,7 @@ private:
                              Bounds &bound, Bounds &low) {
         namespace dr = drjit;
         if (channels != 3) {
-            bound = low = Bounds{ values, true, background[0] };
+            bound = low = Bounds{ values, true, dr::opaque<Float>(background[0]) };
             return;
         }
         const uint32_t count = uint32_t(dr::width(values) / channels);
@@ -168,8 +186,8 @@ private:
             bg_hi = std::max(bg_hi, background[k]);
             bg_lo = std::min(bg_lo, background[k]);
         }
-        bound = Bounds{ dr::select(stored, hi, bg_hi) };
-        low = Bounds{ dr::select(stored, lo, bg_lo) };
+        bound = Bounds{ dr::select(stored, hi, dr::opaque<Float>(bg_hi)), false, Float() };
+        low = Bounds{ dr::select(stored, lo, dr::opaque<Float>(bg_lo)), false, Float() };
         dr::eval(bound.array, low.array);
     }
 
@@ -202,6 +220,7 @@ private:
     void leaf_layers(const UInt32 &grid, const Bounds &bound, const Bounds &low, uint32_t channels,
                      uint32_t first_leaf, uint32_t count, Leaves &out) const {
         namespace dr = drjit;
+        const UInt32 leaf0 = dr::opaque<UInt32>(first_leaf); // (one kernel for every chunk)
         const GridTypeConstants &c = GRID_TYPE_CONSTANTS_ONINDEX;
         // Planes (leaf, x): 3 x 3 parts in (y, z), a row of 8 voxels along z
         // at a time, their value indices from the leaf's mask (its word x
@@ -212,7 +231,7 @@ private:
         {
             const UInt32 lane = dr::arange<UInt32>(count * 8u);
             const UInt32 x = lane & 7u;
-            const UInt32 leaf = m_layout.leaf_begin_word + (first_leaf + (lane >> 3)) * m_leaf_words;
+            const UInt32 leaf = m_at.leaf_begin + (leaf0 + (lane >> 3)) * m_at.leaf_words;
             const UInt32 table = leaf + c.leaf_off_table / 4;
             auto u64 = [&](const UInt32 &at) {
                 return UInt64(dr::gather<UInt32>(grid, at)) |
@@ -287,7 +306,7 @@ private:
             low_out = dr::minimum(low_out, dr::gather<Float>(plane_low, plane));
             sum += dr::gather<Float64>(plane_sum, plane);
         }
-        const UInt32 at = first_leaf + leaf;
+        const UInt32 at = leaf0 + leaf;
         for (uint32_t k = 0; k < 27; ++k) {
             dr::scatter(out.max, mx[k], at * 27u + k);
             dr::scatter(out.min, mn[k], at * 27u + k);
@@ -297,9 +316,8 @@ private:
         dr::eval(out.max, out.min, out.low, out.mean);
     }
 
-    /// The leaves' layers, in chunks of at most LEAF_CHUNK leaves (the
-    /// planes' arrays, 84 bytes a plane, stay below 45 MB)
-    static constexpr uint32_t LEAF_CHUNK = 1u << 16;
+    /// The leaves' layers, in chunks of m_leaf_chunk leaves (the planes'
+    /// arrays: 84 bytes a plane)
     Leaves leaf_layers(const UInt32 &grid, const Bounds &bound, const Bounds &low,
                        uint32_t channels) const {
         namespace dr = drjit;
@@ -308,8 +326,8 @@ private:
         out.min = dr::zeros<Float>(m_leaves * 27u);
         out.low = dr::zeros<Float>(m_leaves);
         out.mean = dr::zeros<Float64>(m_leaves);
-        for (uint32_t first = 0; first < m_leaves; first += LEAF_CHUNK)
-            leaf_layers(grid, bound, low, channels, first, std::min(LEAF_CHUNK, m_leaves - first),
+        for (uint32_t first = 0; first < m_leaves; first += m_leaf_chunk)
+            leaf_layers(grid, bound, low, channels, first, std::min(m_leaf_chunk, m_leaves - first),
                         out);
         return out;
     }
@@ -362,13 +380,15 @@ private:
     /// filter (three passes of three); ring() itself runs only on the others
     /// (`slow`: children, the node's faces, tiles beside a child; the plan's)
     void rings(const Int32 &entries, const Int32 &around, const UInt32 &slow, uint32_t dim,
-               uint32_t nodes, const Float &child_max, const Float &child_min, const Bounds &bound,
-               Float &mx, Float &mn) const {
+               uint32_t first_node, uint32_t nodes, const Float &child_max,
+               const Float &child_min, const Bounds &bound, Float &mx, Float &mn) const {
         namespace dr = drjit;
         const uint32_t log2 = dim == LOWER_DIM ? 4 : 5, count = dim * dim * dim;
         const UInt32 lane = dr::arange<UInt32>(nodes * count);
+        // (opaque: one kernel for every chunk of nodes)
+        const UInt32 offset = dr::opaque<UInt32>(first_node * count);
         {
-            const Int32 code = dr::gather<Int32>(entries, lane);
+            const Int32 code = dr::gather<Int32>(entries, offset + lane);
             const Float v = bound.at(UInt32(-1 - code), code < 0);
             mx = dr::select(code < 0, v, -Inf);
             mn = dr::select(code < 0, v, Inf);
@@ -395,8 +415,8 @@ private:
             Float smx = dr::full<Float>(-Inf, n), smn = dr::full<Float>(Inf, n);
             ring(entries, around, dim, node, xyz, child_max, child_min, bound, smx, smn);
             dr::eval(mx, mn);
-            dr::scatter(mx, smx, slow);
-            dr::scatter(mn, smn, slow);
+            dr::scatter(mx, smx, slow - offset);
+            dr::scatter(mn, smn, slow - offset);
         }
         dr::eval(mx, mn);
     }
@@ -493,18 +513,29 @@ private:
         return dr::select(!(M > 0.f) || dr::isinf(M), 0u, out);
     }
 
-    Lowers lower_nodes(const Leaves &leaves, const Bounds &bound, float factor, UInt32 &out) const {
+    /// Lower nodes [first, first + nodes): their slots in `out`, their M, m,
+    /// control L and sum of c into `lw` (allocated for all)
+    void lower_nodes(const Leaves &leaves, const Bounds &bound, float factor, uint32_t first,
+                     uint32_t nodes, uint32_t chunk, Lowers &lw, UInt32 &out) const {
         namespace dr = drjit;
-        const uint32_t n = m_lowers * LOWER_ENTRY_COUNT;
+        const uint32_t n = nodes * LOWER_ENTRY_COUNT;
+        const UInt32 base = dr::opaque<UInt32>(first); // (one kernel for every chunk)
         Float ring_max, ring_min;
-        rings(m_lower_entries, m_lower_around, m_lower_slow, LOWER_DIM, m_lowers, leaves.max,
-              leaves.min, bound, ring_max, ring_min);
+        {
+            const uint32_t s0 = m_lower_slow_begin[chunk], s1 = m_lower_slow_begin[chunk + 1];
+            const UInt32 slow =
+                s1 > s0 ? dr::gather<UInt32>(m_lower_slow, dr::arange<UInt32>(s1 - s0) + dr::opaque<UInt32>(s0))
+                        : UInt32();
+            rings(m_lower_entries, m_lower_around, slow, LOWER_DIM, first, nodes, leaves.max,
+                  leaves.min, bound, ring_max, ring_min);
+        }
         // Entries, a lane each, brick by brick (64 lanes a brick)
         Float r, low, control_low, Rc;
         Float64 mean;
         {
             const UInt32 lane = dr::arange<UInt32>(n);
-            const UInt32 node = lane >> 12, b = (lane >> 6) & 63u, l = lane & 63u;
+            const UInt32 local = lane >> 12, node = base + local, b = (lane >> 6) & 63u,
+                         l = lane & 63u;
             const UInt32 xyz[3] = { ((b >> 4) << 2) | (l >> 4), (((b >> 2) & 3u) << 2) | ((l >> 2) & 3u),
                                     ((b & 3u) << 2) | (l & 3u) };
             const UInt32 e = (xyz[0] << 8) | (xyz[1] << 4) | xyz[2];
@@ -513,8 +544,8 @@ private:
             const UInt32 li = UInt32(code);
             const Float leaf_max = dr::gather<Float>(leaves.max, li * 27u, leaf);
             const Float v = bound.at(UInt32(-1 - code), !leaf);
-            const Float mx = dr::gather<Float>(ring_max, (node << 12) + e),
-                        mn = dr::gather<Float>(ring_min, (node << 12) + e);
+            const Float mx = dr::gather<Float>(ring_max, (local << 12) + e),
+                        mn = dr::gather<Float>(ring_min, (local << 12) + e);
             r = dr::maximum(dr::select(leaf, leaf_max, v), mx);
             low = dr::select(leaf, dr::gather<Float>(leaves.low, li, leaf), v);
             control_low = dr::select(low > 0.f, dr::minimum(low, mn), low);
@@ -530,31 +561,34 @@ private:
                     brick_low = dr::block_reduce(ReduceOp::Min, low, 64),
                     brick_control = dr::block_reduce(ReduceOp::Min, control_low, 64);
         const Float64 brick_sum = dr::block_reduce(ReduceOp::Add, mean, 64);
-        Lowers lw;
-        lw.M = dr::block_reduce(ReduceOp::Max, brick_M, 64);
-        const Float R = dr::block_reduce(ReduceOp::Max, Rc, LOWER_ENTRY_COUNT);
-        lw.m = dr::block_reduce(ReduceOp::Min, brick_low, 64);
-        lw.low = dr::block_reduce(ReduceOp::Min, brick_control, 64);
-        lw.sum = dr::block_reduce(ReduceOp::Add, brick_sum, 64);
         {
-            const UInt32 node = dr::arange<UInt32>(m_lowers);
-            const UInt32 slot = m_layout.lower_slot + LOWER_SLOTS * node;
-            dr::scatter(out, bits(lw.M * factor), slot);
+            const Float M = dr::block_reduce(ReduceOp::Max, brick_M, 64),
+                        R = dr::block_reduce(ReduceOp::Max, Rc, LOWER_ENTRY_COUNT),
+                        m = dr::block_reduce(ReduceOp::Min, brick_low, 64),
+                        low_node = dr::block_reduce(ReduceOp::Min, brick_control, 64);
+            const Float64 sum = dr::block_reduce(ReduceOp::Add, brick_sum, 64);
+            const UInt32 node = base + dr::arange<UInt32>(nodes);
+            const UInt32 slot = m_at.lower_slot + LOWER_SLOTS * node;
+            dr::scatter(out, bits(M * factor), slot);
             dr::scatter(out, bits(R * factor), slot + 1u);
-            dr::scatter(out, bits(lw.m * factor), slot + 2u);
-            dr::scatter(out, control<16>(lw.M, Float(lw.sum * (1.0 / 4096.0)), lw.low),
+            dr::scatter(out, bits(m * factor), slot + 2u);
+            dr::scatter(out, control<16>(M, Float(sum * (1.0 / 4096.0)), low_node),
                         slot + LOWER_CONTROL_SLOT);
+            dr::scatter(lw.M, M, node);
+            dr::scatter(lw.m, m, node);
+            dr::scatter(lw.low, low_node, node);
+            dr::scatter(lw.sum, sum, node);
         }
         {
-            const UInt32 brick = dr::arange<UInt32>(m_lowers * 64u);
+            const UInt32 brick = dr::arange<UInt32>(nodes * 64u);
             dr::scatter(out, bits(brick_M * factor),
-                        m_layout.lower_slot + LOWER_SLOTS * (brick >> 6) + LOWER_BRICK_M_SLOT +
-                            (brick & 63u));
+                        m_at.lower_slot + LOWER_SLOTS * (base + (brick >> 6)) +
+                            LOWER_BRICK_M_SLOT + (brick & 63u));
         }
         // Four bricks a word: their m as fractions, their controls
         {
-            const UInt32 word = dr::arange<UInt32>(m_lowers * 16u);
-            UInt32 fractions = dr::zeros<UInt32>(m_lowers * 16u), controls = fractions;
+            const UInt32 word = dr::arange<UInt32>(nodes * 16u);
+            UInt32 fractions = dr::zeros<UInt32>(nodes * 16u), controls = fractions;
             for (uint32_t k = 0; k < 4; ++k) {
                 const UInt32 brick = word * 4u + k;
                 const Float M = dr::gather<Float>(brick_M, brick);
@@ -563,16 +597,16 @@ private:
                                        dr::gather<Float>(brick_control, brick))
                             << (8 * k);
             }
-            const UInt32 slot = m_layout.lower_slot + LOWER_SLOTS * (word >> 4) + (word & 15u);
+            const UInt32 slot = m_at.lower_slot + LOWER_SLOTS * (base + (word >> 4)) + (word & 15u);
             dr::scatter(out, fractions, slot + LOWER_BRICK_FRACTION_SLOT);
             dr::scatter(out, controls, slot + LOWER_BRICK_CONTROL_SLOT);
         }
         // Four entries a word: their bounds as fractions of their brick's
         // M, their controls as fractions of those bounds
         {
-            const UInt32 word = dr::arange<UInt32>(m_lowers * 1024u);
-            const UInt32 node = word >> 10;
-            UInt32 fractions = dr::zeros<UInt32>(m_lowers * 1024u), controls = fractions;
+            const UInt32 word = dr::arange<UInt32>(nodes * 1024u);
+            const UInt32 node = word >> 10; // (in the chunk)
+            UInt32 fractions = dr::zeros<UInt32>(nodes * 1024u), controls = fractions;
             for (uint32_t k = 0; k < 4; ++k) {
                 const UInt32 e = ((word & 1023u) << 2) | k;
                 const UInt32 x = e >> 8, y = (e >> 4) & 15u, z = e & 15u;
@@ -585,10 +619,22 @@ private:
                                        dr::gather<Float>(control_low, at))
                             << (8 * k);
             }
-            const UInt32 slot = m_layout.lower_slot + LOWER_SLOTS * node + (word & 1023u);
+            const UInt32 slot = m_at.lower_slot + LOWER_SLOTS * (base + node) + (word & 1023u);
             dr::scatter(out, fractions, slot + LOWER_ENTRY_FRACTION_SLOT);
             dr::scatter(out, controls, slot + LOWER_ENTRY_CONTROL_SLOT);
         }
+        dr::eval(out, lw.M, lw.m, lw.low, lw.sum);
+    }
+
+    /// The lower nodes in chunks of m_lower_chunk (their entries' arrays: 40
+    /// bytes an entry)
+    Lowers lower_nodes(const Leaves &leaves, const Bounds &bound, float factor, UInt32 &out) const {
+        namespace dr = drjit;
+        Lowers lw{ dr::zeros<Float>(m_lowers), dr::zeros<Float>(m_lowers), dr::zeros<Float>(m_lowers),
+                   dr::zeros<Float64>(m_lowers) };
+        for (uint32_t first = 0, chunk = 0; first < m_lowers; first += m_lower_chunk, ++chunk)
+            lower_nodes(leaves, bound, factor, first, std::min(m_lower_chunk, m_lowers - first), chunk,
+                        lw, out);
         return lw;
     }
 
@@ -603,7 +649,7 @@ private:
         const UInt32 ci = UInt32(code);
         const Float v = bound.at(UInt32(-1 - code), !child);
         Float mx, mn;
-        rings(m_upper_entries, m_upper_around, m_upper_slow, UPPER_DIM, m_uppers, lower_max,
+        rings(m_upper_entries, m_upper_around, m_upper_slow, UPPER_DIM, 0, m_uppers, lower_max,
               lower_min, bound, mx, mn);
         const Float r = dr::maximum(v, mx);
         // Per entry: what it adds to the node's M, R (an index grid's walk
@@ -622,7 +668,7 @@ private:
                     m = dr::block_reduce(ReduceOp::Min, e_m, count),
                     low = dr::block_reduce(ReduceOp::Min, e_low, count);
         const Float64 sum = dr::block_reduce(ReduceOp::Add, e_c, count);
-        const UInt32 slot = m_layout.upper_slot + UPPER_SLOTS * dr::arange<UInt32>(m_uppers);
+        const UInt32 slot = m_at.upper_slot + UPPER_SLOTS * dr::arange<UInt32>(m_uppers);
         dr::scatter(out, bits(M * factor), slot);
         dr::scatter(out, bits(R * factor), slot + 1u);
         dr::scatter(out, bits(m * factor), slot + 2u);
@@ -658,7 +704,7 @@ private:
                     }
             e = dr::select(child, dr::gather<Float>(upper_M, UInt32(code), child), e);
             dr::scatter(out, bits(e * factor),
-                        m_layout.tile_slot + dr::gather<UInt32>(m_tile_index, tile));
+                        m_at.tile_slot + dr::gather<UInt32>(m_tile_index, tile));
         }
         Float bg = bound.at(dr::opaque<UInt32>(m_background_index));
         if (m_background_pairs > 0) {
@@ -673,7 +719,7 @@ private:
                 bound.at(UInt32(-1 - code), !upper));
             bg = dr::maximum(bg, dr::max(layer));
         }
-        dr::scatter(out, bits(bg * factor), dr::opaque<UInt32>(m_layout.background_slot));
+        dr::scatter(out, bits(bg * factor), m_at.background_slot);
     }
 
     // ---- The mean bound ------------------------------------------------------------
@@ -684,8 +730,9 @@ private:
         using Int64 = dr::int64_array_t<Float>;
         Float64 v = 1.0;
         for (int a = 0; a < 3; ++a) {
-            const Int64 lo = dr::maximum(Int64(o[a]), int64_t(box.lo[a])),
-                        hi = dr::minimum(Int64(o[a]) + ((int64_t(1) << log2) - 1), int64_t(box.hi[a]));
+            const Int64 lo = dr::maximum(Int64(o[a]), dr::opaque<Int64>(box.lo[a])),
+                        hi = dr::minimum(Int64(o[a]) + ((int64_t(1) << log2) - 1),
+                                         dr::opaque<Int64>(box.hi[a]));
             v *= dr::select(lo > hi, 0.0, Float64(hi - lo + 1));
         }
         return v;
@@ -716,7 +763,7 @@ private:
         Mask upper_uniform;
         {
             const UInt32 node = dr::arange<UInt32>(m_uppers);
-            const UInt32 at = m_layout.upper_slot + UPPER_SLOTS * node;
+            const UInt32 at = m_at.upper_slot + UPPER_SLOTS * node;
             const Float M = slot(at);
             Int32 o[3];
             origin(m_upper_origins, node, o);
@@ -725,7 +772,7 @@ private:
         {
             const UInt32 lane = dr::arange<UInt32>(m_uppers * 32768u);
             const UInt32 node = lane >> 15, e = lane & 32767u;
-            const UInt32 at = m_layout.upper_slot + UPPER_SLOTS * node;
+            const UInt32 at = m_at.upper_slot + UPPER_SLOTS * node;
             const Int32 code = dr::gather<Int32>(m_upper_entries, lane);
             const Mask tile = code < 0 && !uniform(slot(at), slot(at + 2u));
             Int32 o[3];
@@ -742,9 +789,9 @@ private:
             const UInt32 lane = dr::arange<UInt32>(m_lowers * 4096u);
             const UInt32 node = lane >> 12, e = lane & 4095u;
             const UInt32 x = e >> 8, y = (e >> 4) & 15u, z = e & 15u;
-            const UInt32 up = m_layout.upper_slot + UPPER_SLOTS * dr::gather<UInt32>(m_lower_parent, node);
+            const UInt32 up = m_at.upper_slot + UPPER_SLOTS * dr::gather<UInt32>(m_lower_parent, node);
             const Mask counted = !uniform(slot(up), slot(up + 2u));
-            const UInt32 at = m_layout.lower_slot + LOWER_SLOTS * node;
+            const UInt32 at = m_at.lower_slot + LOWER_SLOTS * node;
             const UInt32 b = ((x >> 2) << 4) | ((y >> 2) << 2) | (z >> 2);
             const Float M = slot(at), brick = slot(at + LOWER_BRICK_M_SLOT + b);
             const UInt32 qb = (word(at + LOWER_BRICK_FRACTION_SLOT + (b >> 2)) >> (8u * (b & 3u))) & 255u,
@@ -773,22 +820,30 @@ private:
             covered = dr::sum(vol);
             const Mask value = dr::gather<Int32>(m_tile_codes, tile) < 0;
             sum += dr::sum(dr::select(
-                value, clamped(slot(m_layout.tile_slot + dr::gather<UInt32>(m_tile_index, tile))) * vol, 0.0));
+                value, clamped(slot(m_at.tile_slot + dr::gather<UInt32>(m_tile_index, tile))) * vol, 0.0));
         }
-        const Float64 rest = box_volume - covered;
+        const Float64 rest = dr::opaque<Float64>(box_volume) - covered;
         sum += dr::select(rest > 0.0,
-                          clamped(slot(dr::opaque<UInt32>(m_layout.background_slot))) * rest, 0.0);
-        return sum * (1.0 / box_volume);
+                          clamped(slot(m_at.background_slot)) * rest, 0.0);
+        return sum * dr::opaque<Float64>(1.0 / box_volume);
     }
 
+    uint32_t m_leaf_chunk = 1, m_lower_chunk = 1;
     MajorantTableLayout m_layout;
-    uint32_t m_ring = 1, m_leaves = 0, m_lowers = 0, m_uppers = 0, m_tiles = 0, m_leaf_words = 0,
+    /// The layout's numbers as the kernels read them: opaque, so that every
+    /// grid runs the same kernels (as literals, each grid's first rebuild
+    /// compiled its own: 0.26 s)
+    struct {
+        UInt32 leaf_begin, leaf_words, lower_slot, upper_slot, tile_slot, background_slot;
+    } m_at;
+    uint32_t m_ring = 1, m_leaves = 0, m_lowers = 0, m_uppers = 0, m_tiles = 0,
              m_background_index = 0, m_background_pairs = 0;
     Int32 m_lower_entries, m_upper_entries, m_lower_around, m_upper_around, m_tile_codes,
         m_tile_around, m_background_codes;
     UInt32 m_tile_index, m_background_layers;
     Int32 m_lower_origins, m_upper_origins, m_tile_origins;
     UInt32 m_lower_parent, m_lower_slow, m_upper_slow;
+    std::vector<uint32_t> m_lower_slow_begin; ///< per chunk of lower nodes, its first slow entry
 };
 
 } // namespace nanovdb_drjit
