@@ -333,6 +333,9 @@ def test10_backend_rebuild_equals_the_host_one(variant, name):
         "type": "nanovdbvolume", "filename": str(path), "differentiable": True,
         "filter_type": "trilinear", "invalid_values": "clamp", "max_value": 1e6,
         "majorant_rebuild": where}) for where in ("backend", "host")]
+    from nanovdb_mitsuba.facts import volume_facts
+    # (the plan took the tree: else both would rebuild on the host)
+    assert [volume_facts(v)["majorant_rebuild"] for v in volumes] == ["backend", "host"]
     rng = np.random.default_rng(11)
     values = np.array(mi.traverse(volumes[0])["data"])
     # (a scale that gives the rays an optical depth of about 20)

@@ -29,8 +29,9 @@ def volume_facts(volume):
     world_bbox_max, max (what lookups return at most), grid_max (the largest
     value the grid stores), background, local_majorant_ratio, grid_bytes,
     backend_bytes, majorant_bytes, spectral_scale_bytes, wrap_mode ("clamp"
-    or "tree"), and with count_lookups=True the counters (lookup_count,
-    walk_step_count, ...)."""
+    or "tree"), majorant_rebuild ("backend": a differentiable volume's
+    majorants follow its updates there; "host"), and with count_lookups=True
+    the counters (lookup_count, walk_step_count, ...)."""
     import mitsuba as mi
     p = mi.traverse(volume)
 
@@ -48,6 +49,7 @@ def volume_facts(volume):
         "world_bbox_min": vec("world_bbox_min", float),
         "world_bbox_max": vec("world_bbox_max", float),
         "wrap_mode": "clamp" if p["wrap_clamp"] else "tree",
+        "majorant_rebuild": "backend" if p["majorant_rebuild_on_backend"] else "host",
     }
     for key in ("max", "grid_max", "background", "local_majorant_ratio"):
         facts[key] = float(p[key])

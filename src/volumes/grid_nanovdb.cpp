@@ -522,6 +522,10 @@ public:
         put("majorant_bytes", m_trav.majorant_bytes);
         put("spectral_scale_bytes", m_trav.scale_bytes);
         put("wrap_clamp", m_clamp);
+        // differentiable: whether updates rebuild the majorants on the
+        // backend (majorant_rebuild, and a tree the plan takes)
+        m_trav.rebuild_on_backend = m_load.index.rebuild.valid();
+        put("majorant_rebuild_on_backend", m_trav.rebuild_on_backend);
         // level_set="fog" made this grid, a level set in the file, a fog volume
         put("level_set_fogged", m_load.fogged);
         // A .vdb file: converted at load; the class the grid had in the file
@@ -1078,6 +1082,7 @@ private:
         uint32_t grid_type = 0, grid_class = 0, channels = 1;
         ScalarPoint3f bbox_min, bbox_max;
         ScalarFloat max = 0.f;
+        bool rebuild_on_backend = false;
         double grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0,
                value_bytes = 0;
         double counters[(uint32_t) nanovdb_drjit::Counter::Count] = {};
