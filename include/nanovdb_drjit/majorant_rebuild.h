@@ -38,6 +38,7 @@
 
 #include "layout.h"
 #include "majorant_table.h"
+#include "majorant_walk.h"
 #include "rebuild_plan.h"
 
 #include <drjit/jit.h>
@@ -470,13 +471,6 @@ private:
         return dr::select(!(M > 0.f) || !(m > 0.f), 0u, r);
     }
 
-    /// child_bound of majorant_table.h, on the backend
-    static Float entry_bound(const Float &M, const UInt32 &q) {
-        namespace dr = drjit;
-        return dr::select(q == 0u, 0.f,
-                          dr::select(M > 0.f, M, 0.f) * (Float(q) * (1.f / 255.f)));
-    }
-
     /// child_fraction of majorant_table.h: its search starts one step below
     /// the answer, which is at most two steps further
     static UInt32 entry_fraction(const Float &M, const Float &r) {
@@ -487,7 +481,7 @@ private:
         Mask found = q >= 255u;
         UInt32 out = dr::full<UInt32>(255u, dr::width(q));
         for (int step = 0; step < 4; ++step) {
-            const Mask ok = !found && q < 255u && Float64(entry_bound(M, q)) >= want;
+            const Mask ok = !found && q < 255u && Float64(child_bound_of(M, q)) >= want;
             out = dr::select(ok, q, out);
             found |= ok;
             q += 1u;
@@ -615,7 +609,7 @@ private:
                 const Float M = dr::gather<Float>(brick_M, (node << 6) | b);
                 const UInt32 q = entry_fraction(M, dr::gather<Float>(r, at));
                 fractions |= q << (8 * k);
-                controls |= control<4>(entry_bound(M, q), Float(dr::gather<Float64>(mean, at)),
+                controls |= control<4>(child_bound_of(M, q), Float(dr::gather<Float64>(mean, at)),
                                        dr::gather<Float>(control_low, at))
                             << (8 * k);
             }
@@ -798,8 +792,7 @@ private:
                          qe = (word(at + LOWER_ENTRY_FRACTION_SLOT + (e >> 2)) >> (8u * (e & 3u))) & 255u;
             const Float cell = dr::select(
                 uniform(M, slot(at + 2u)), M,
-                dr::select(uniform(brick, brick * (Float(qb) * (1.f / 255.f))), brick,
-                           entry_bound(brick, qe)));
+                dr::select(uniform(brick, brick_min_of(brick, qb)), brick, child_bound_of(brick, qe)));
             Int32 o[3];
             origin(m_lower_origins, node, o);
             o[0] += Int32(x) << 3;

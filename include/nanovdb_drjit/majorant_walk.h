@@ -204,6 +204,16 @@ template <typename UInt32> struct MajorantGrid {
  * of the last step that reached one (0: none). A DRJIT_STRUCT, so it can be
  * the state of a dr::while_loop.
  */
+/// majorant_table.h's brick_min and child_bound on the backend: a brick's m
+/// and an entry's bound from the brick's M and their 8-bit fractions q (the
+/// walk reads them so; the rebuild's mean bound too, majorant_rebuild.h)
+template <typename Float, typename UInt32> Float brick_min_of(const Float &brick_M, const UInt32 &q) {
+    return brick_M * (Float(q) / 255.f);
+}
+template <typename Float, typename UInt32> Float child_bound_of(const Float &brick_M, const UInt32 &q) {
+    return dr::select(q == 0u, 0.f, dr::maximum(brick_M, 0.f) * (Float(q) * (1.f / 255.f)));
+}
+
 template <typename Float> struct MajorantWalk {
     using UInt32 = dr::uint32_array_t<Float>;
     using Int32 = dr::int32_array_t<Float>;
@@ -425,7 +435,7 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
         g.words(), UInt32(cell.lower_slot + LOWER_BRICK_FRACTION_SLOT + (brick >> 2)), new_brick);
     Float brick_m = dr::select(
         same_brick, walk.brick_m,
-        brick_M * (Float((fractions >> ((brick & 3u) << 3)) & 255u) / 255.f));
+        brick_min_of(brick_M, (fractions >> ((brick & 3u) << 3)) & 255u));
     walk.brick_slot = dr::select(into_lower, brick_slot, walk.brick_slot);
     walk.brick_M = dr::select(into_lower, brick_M, walk.brick_M);
     walk.brick_m = dr::select(into_lower, brick_m, walk.brick_m);
@@ -440,8 +450,7 @@ dr::int32_array_t<Float> walk_classify(const Buffer &buf, const Root &root,
     UInt32 entry_q = (read_uint32(g.words(),
                                   UInt32(cell.lower_slot + LOWER_ENTRY_FRACTION_SLOT + (n >> 2)),
                                   into_brick) >> ((n & 3u) << 3)) & 255u;
-    Float entry_bound = dr::select(entry_q == 0u, 0.f,
-                                   dr::maximum(brick_M, 0.f) * (Float(entry_q) * (1.f / 255.f)));
+    Float entry_bound = child_bound_of(brick_M, entry_q);
 
     Float bound = dr::select(thin_lower, cell.lower_M, cell.bound);
     bound = dr::select(thin_brick, brick_M, bound);
