@@ -35,6 +35,12 @@ two runs' volumes differ at the same iteration, so the plugins are also
 timed at one volume, the target's values: render + backward of every view,
 --timing-rounds times after an untimed round (step_at_target_s).
 
+--freeze: render + loss + backward run as one frozen function (dr.freeze,
+Mitsuba's way of leaving out Python's tracing of the integrator once it is
+recorded), for every integrator alike; the update (params.update(), the
+majorant rebuild) and Adam's step stay outside it. The runs' names end
+in _frozen.
+
 A measurement, not a test; results: OUT/PLUGIN_TARGET.{json,csv,png}.
 """
 import argparse
@@ -83,6 +89,8 @@ def main():
                     choices=["nearest", "trilinear", "stochastic_trilinear"],
                     help="nanovdbvolume's filter_type while optimizing (gridvolume: trilinear "
                          "always; the target images are rendered with trilinear)")
+    ap.add_argument("--freeze", action="store_true",
+                    help="render + loss + backward as one frozen function (dr.freeze)")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "optimize"))
     a = ap.parse_args()
 
@@ -145,6 +153,29 @@ def main():
         # over the whole box: a voxel outside the sparse tree is 0 in both
         return float(np.sqrt(np.sum((values - truth) ** 2) / box_voxels))
 
+    # A step: render one view, its L2 loss against the view's target,
+    # backward. --freeze: as one frozen function of the scene, the sensor,
+    # the seed (opaque: one recording for every seed) and the target image
+    sensors = scene.sensors()
+
+    def step(scene, sensor, seed, ref):
+        params = mi.traverse(scene)
+        params.keep(pkey)
+        img = mi.render(scene, params, sensor=sensor, seed=seed, spp=a.spp)
+        loss = dr.mean(dr.square(img - ref))
+        dr.backward(loss)
+        return loss
+
+    frozen = dr.freeze(step) if a.freeze else None
+
+    def run_step(v, seed):
+        if frozen is not None:
+            return frozen(scene, sensors[v], dr.opaque(mi.UInt32, seed), refs[v])
+        img = mi.render(scene, params, sensor=v, seed=seed, spp=a.spp)
+        loss = dr.mean(dr.square(img - refs[v]))
+        dr.backward(loss)
+        return loss
+
     # The time of a step at the same volume for both plugins: the target's
     # values (a step's time grows with the densities, so iterations of two
     # runs, whose volumes differ, do not compare): render + backward of
@@ -161,8 +192,7 @@ def main():
             dr.enable_grad(params[pkey])
             params.update()
             t0 = time.perf_counter()
-            img = mi.render(scene, params, sensor=v, seed=r * a.views + v, spp=a.spp)
-            dr.backward(dr.mean(dr.square(img - refs[v])))
+            run_step(v, r * a.views + v)
             g = dr.grad(params[pkey])
             dr.eval(g)
             dr.sync_thread()
@@ -204,9 +234,7 @@ def main():
     for it in range(a.iters):
         v = it % a.views
         t0 = time.perf_counter()
-        img = mi.render(scene, params, sensor=v, seed=it, spp=a.spp)
-        loss = dr.mean(dr.square(img - refs[v]))
-        dr.backward(loss)
+        loss = run_step(v, it)
         optimizer.step()
         optimizer[pkey] = dr.maximum(optimizer[pkey], 0.0)
         params.update(optimizer)
@@ -233,14 +261,16 @@ def main():
         update_s=statistics.median(update_s) if update_s else None,
         majorant_rebuild_s=statistics.median(rebuild_s) if rebuild_s else None,
         volume_rmse_start=box_rmse(np.full_like(truth, truth.mean() * 0.1)),
-        volume_rmse_end=rows[-1]["volume_rmse"], loss_end=rows[-1]["loss"])
+        volume_rmse_end=rows[-1]["volume_rmse"], loss_end=rows[-1]["loss"],
+        frozen=a.freeze, recordings=frozen.n_recordings if frozen is not None else None)
     print(json.dumps(summary, indent=1))
 
     os.makedirs(a.out, exist_ok=True)
     stem = os.path.join(a.out, f"{a.plugin}_{os.path.splitext(os.path.basename(a.target))[0]}" +
                         (f"_{a.filter}" if a.plugin == "nanovdbvolume" and a.filter != "trilinear"
                          else "") +
-                        (f"_{a.integrator}" if a.integrator != "prbvolpath" else ""))
+                        (f"_{a.integrator}" if a.integrator != "prbvolpath" else "") +
+                        ("_frozen" if a.freeze else ""))
     with open(stem + ".json", "w") as f:
         json.dump(dict(summary=summary, rows=rows), f, indent=1)
     with open(stem + ".csv", "w") as f:
@@ -261,7 +291,8 @@ def main():
         ax[1].semilogy([r["elapsed_s"] for r in rows], [r["loss"] for r in rows])
         ax[1].set_xlabel("time [s]")
         ax[1].set_ylabel("image loss")
-        fig.suptitle(f"{a.integrator}, {a.plugin}, {os.path.basename(a.target)}, {a.variant}")
+        fig.suptitle(f"{a.integrator}, {a.plugin}, {os.path.basename(a.target)}, {a.variant}" +
+                     (", frozen" if a.freeze else ""))
         fig.tight_layout()
         fig.savefig(stem + ".png", dpi=100)
     except ImportError:
@@ -283,10 +314,10 @@ def compare(out):
             continue
         s = data["summary"]
         case = (os.path.basename(path)[:-5].split("_", 1)[1].replace("_stochastic_trilinear", "")
-                .replace("_prbvolpathlocal", ""))
+                .replace("_prbvolpathlocal", "").replace("_frozen", ""))
         runs.setdefault(case, []).append(
-            (f"{s.get('integrator', 'prbvolpath')}, {s['plugin']}, {s.get('filter', 'trilinear')}",
-             data))
+            (f"{s.get('integrator', 'prbvolpath')}, {s['plugin']}, {s.get('filter', 'trilinear')}" +
+             (", frozen" if s.get("frozen") else ""), data))
     for case, rs in runs.items():
         fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
         for label, data in rs:

@@ -9,6 +9,8 @@ emission grids), the primal pass itself (the adjoint pass must replay its
 path: what it subtracts sums to what the primal pass added), and the
 volume's own lookups (the rebuilt majorants bound them after an update, and
 equal a fresh load's)."""
+import re
+
 import numpy as np
 import pytest
 
@@ -377,3 +379,89 @@ def test11_majorant_rebuild_names_a_bad_choice(ad_rgb):
     with pytest.raises(RuntimeError, match=r'invalid value "gpu" for majorant_rebuild.*'
                                            r'"backend" or "host"'):
         mi.load_dict(dict(ball_volume(), majorant_rebuild="gpu"))
+
+
+@pytest.mark.parametrize("majorant_rebuild", ["backend", "host"])
+def test12_frozen_step_follows_updates(ad_rgb, majorant_rebuild):
+    """A step (render + backward) frozen with dr.freeze, Mitsuba's way of
+    leaving out the Python tracing of the PRB loops, replayed after updates
+    that move the values (100x, half the box 0, scaled at random: the
+    majorants and max() all change): its image and gradient equal an
+    unfrozen step's with the same seed on a twin scene, and it was
+    replayed, not re-recorded. Recorded at small values, then replayed at
+    100x: a replay that kept the recording's table or loop bounds differs"""
+    volume = dict(ball_volume("stochastic_trilinear"), majorant_rebuild=majorant_rebuild)
+    del volume["max_value"]  # (max() follows the values)
+    scenes = [medium_scene(volume, "prbvolpathlocal", res=16, spp=4) for _ in range(2)]
+    key = data_key(mi.traverse(scenes[0]))
+    weights = mi.TensorXf(np.random.default_rng(3).uniform(0, 2, (16, 16, 3)).astype(np.float32))
+
+    def step(scene, seed):
+        params = mi.traverse(scene)
+        params.keep(key)
+        image = mi.render(scene, params, seed=seed)
+        dr.backward(dr.mean(image * weights))
+        return image
+
+    frozen = dr.freeze(step)
+    # (the values in the index grid's order: its first half is a part of the box)
+    d = np.array(mi.traverse(scenes[0])[key])
+    rng = np.random.default_rng(5)
+    half = np.arange(len(d)) < len(d) // 2
+    # Recorded at the first four, replayed at the others but at most one:
+    # 100x, then up to 300x the values. (Dr.Jit records the first step,
+    # again once the sampler's arrays exist, and now and then once more
+    # with no change in the inputs' variables: upstream prbvolpath with
+    # gridvolume too, 2 or 3 recordings in 12 steps)
+    first = [0.5 * d, np.where(half, 0, d), d * rng.uniform(0, 3, len(d)), 0.8 * d]
+    then = [100 * d, np.where(half, d, 0), 0 * d, 100 * d * rng.uniform(0, 3, len(d))]
+    steps = first + then * 2
+    out, recordings = {}, []
+    # (the frozen steps first, then the unfrozen ones on the twin: steps of
+    # another scene in between make Dr.Jit record more often)
+    for scene, f in zip(scenes, (frozen, step)):
+        params = mi.traverse(scene)
+        for i, values in enumerate(steps):
+            params[key] = mi.Float(values.astype(np.float32))
+            params.update()
+            dr.enable_grad(params[key])
+            params.update()
+            image = f(scene, dr.opaque(mi.UInt32, 7 * i))
+            out.setdefault(i, []).append((np.array(image), np.array(dr.grad(params[key]))))
+            dr.disable_grad(params[key])
+            if f is frozen:
+                recordings.append(frozen.n_recordings)
+    for i in range(len(steps)):
+        (img_f, g_f), (img, g) = out[i]
+        assert np.abs(img).max() > 0
+        np.testing.assert_allclose(img_f, img, rtol=1e-5, atol=1e-6 * np.abs(img).max())
+        np.testing.assert_allclose(g_f, g, rtol=0, atol=1e-5 * np.abs(g).max())
+    print("recordings after each step:", recordings)
+    assert recordings[-1] <= 3 and recordings[-1] - recordings[3] <= 1
+
+
+def test13_update_inside_a_frozen_function_is_refused(ad_rgb):
+    """params.update() of "data" inside dr.freeze: the bounds of new values
+    are read back on the host, which a recording cannot replay; the error
+    names the file and says to update before the call"""
+    volume = dict(ball_volume("stochastic_trilinear"))
+    scene = medium_scene(volume, "prbvolpathlocal", res=8, spp=1)
+    key = data_key(mi.traverse(scene))
+
+    def step(scene, values):
+        params = mi.traverse(scene)
+        params[key] = values
+        params.update()
+        return mi.render(scene, params, seed=0)
+
+    values = mi.traverse(scene)[key] * 2.0
+    with pytest.raises(RuntimeError) as e:
+        dr.freeze(step)(scene, values)
+    # (Dr.Jit raises its own error, caused by ours)
+    chain, err = [], e.value
+    while err is not None:
+        chain.append(str(err))
+        err = err.__cause__
+    assert any(re.search(r'"data: a 24 x 24 x 24 tensor.*": "data" was updated inside a frozen '
+                         r'function.*Call params.update\(\) before the frozen function', m)
+               for m in chain), chain

@@ -51,8 +51,11 @@ public:
 
     /// The largest bound a segment of the walk can have (the volume's max()):
     /// with the medium's scale, it bounds the number of tentative collisions
-    /// a tracking loop can meet along a ray (the integrator's loop bounds)
-    virtual ScalarFloat majorant_bound() const = 0;
+    /// a tracking loop can meet along a ray (the integrator's loop bounds).
+    /// A variable the volume holds (opaque), not a host number: a frozen
+    /// function (dr.freeze) finds it among its inputs, so its replays
+    /// read the bound of the values after an update, not the recorded one
+    virtual Float majorant_bound() const = 0;
 
     /// Whether the volume's lookups use a stochastic filter (filter_type
     /// stochastic_*): they then take random offsets (set_lookup_offsets)

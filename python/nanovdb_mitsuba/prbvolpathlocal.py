@@ -145,7 +145,7 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
 
     def prepare_scene(self, scene):
         # prbvolpathlocal: prepared per scene (upstream: once)
-        if self.is_prepared and self.prepared_for is scene:
+        if self.is_prepared and self.prepared_for == id(scene):
             return
         # prbvolpathlocal: the tracked media (as volpathlocal finds them)
         self.tracked = []
@@ -159,7 +159,7 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
             seen.add(medium_index(m))
             if self.bridge.tracked(m, self.max_ratio):  # (2: it emits; fly() sees to that)
                 self.tracked.append((m, medium_index(m)))
-        self.prepared_for = scene
+        self.prepared_for = id(scene)
 
         for shape in scene.shapes():
             for medium in [shape.interior_medium(), shape.exterior_medium()]:

@@ -115,7 +115,8 @@ private:
     /// Its scale and majorant as opaque variables (kernel parameters)
     static TrackedMedium medium(const Medium *m, const Majorants *v, ScalarFloat scale,
                                 const Emissive *e) {
-        return { m, v, dr::opaque<Float>(scale), dr::opaque<Float>(scale * v->majorant_bound()),
+        Float scale_var = dr::opaque<Float>(scale);
+        return { m, v, scale_var, scale_var * v->majorant_bound(),
                  v->stochastic_lookups(), e };
     }
 

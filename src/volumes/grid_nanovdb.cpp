@@ -622,9 +622,13 @@ public:
         return m_channel_count == 6 ? 1.f : m_load.facts.majorant_ratio;
     }
 
-    ScalarFloat majorant_bound() const override {
+    Float majorant_bound() const override {
         node_majorants();
-        return max();
+        // (max(), as the lookups' clamp holds it: set with it, opaque, traversed)
+        Float bound = dr::detach(m_sampler.max);
+        if (m_second)
+            bound = dr::maximum(bound, dr::detach(m_second->max));
+        return bound;
     }
 
     bool stochastic_lookups() const override {
@@ -885,7 +889,9 @@ private:
             spectrum = dr::fmadd(sp, s.weight[corner], spectrum);
             scale = dr::fmadd(sc, s.weight[corner], scale);
         }
-        return spectrum * dr::minimum(scale, m_load.facts.max);
+        // (m_sampler.max: max(), as a variable the kernels share and a frozen
+        // function reads among its inputs; the host number was a literal)
+        return spectrum * dr::minimum(scale, m_sampler.max);
     }
 
     /// The backend's bytes of the grid(s) and what lives beside them
@@ -900,6 +906,7 @@ private:
     void node_majorants() const {
         if (!m_load.index.stale)
             return;
+        m_load.index.refuse_while_recording(m_filename);
         auto *self = const_cast<NanoVDBVolume *>(this);
         nvdb::IndexBounds b =
             self->m_load.index.rebound(self->m_sampler, m_clamp, m_filename, m_grid_name);
@@ -1095,8 +1102,23 @@ private:
     };
     static inline thread_local Offsets s_offsets = { nullptr, nullptr };
 
-    MI_TRAVERSE_CB(Base, m_sampler, m_second, m_resolution, m_index_from_world,
-                   m_cell_from_world, m_world_from_cell)
+    // Dr.Jit's traversal of the volume's variables (MI_TRAVERSE_CB's, which
+    // these two methods spell out): dr.freeze reads them as a frozen
+    // function's inputs, each time before it records or replays. The
+    // per-node majorants of updated values are rebuilt first, so that the
+    // function reads the current table and bounds (a replay runs no C++ of
+    // ours: the walk's own request comes only while it records)
+#define NVDB_VOLUME_MEMBERS m_sampler, m_second, m_resolution, m_index_from_world, \
+                            m_cell_from_world, m_world_from_cell
+    void traverse_1_cb_ro(void *payload, drjit::detail::traverse_callback_ro fn) const override {
+        if (!jit_flag(JitFlag::EnableObjectTraversal))
+            return;
+        node_majorants();
+        Base::traverse_1_cb_ro(payload, fn);
+        DRJIT_MAP(DR_TRAVERSE_MEMBER_RO, NVDB_VOLUME_MEMBERS)
+    }
+    MI_TRAVERSE_CB_RW(Base, NVDB_VOLUME_MEMBERS)
+#undef NVDB_VOLUME_MEMBERS
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)

@@ -115,6 +115,20 @@ template <typename Float> struct IndexUpdates {
             bounded.max3[k] = max3[k];
     }
 
+    /// Updates and rebuilds read numbers back on the host (max(), the mean
+    /// bound), which the recording of a frozen function (dr.freeze) cannot
+    /// replay: refused while one records, saying what to do instead
+    static void refuse_while_recording(const std::string &filename) {
+        if constexpr (drjit::is_jit_v<Float>)
+            if (jit_flag(JitFlag::FreezingScope))
+                Throw("nanovdbvolume: \"%s\": \"data\" was updated inside a frozen function "
+                      "(dr.freeze), or the function reaches the volume other than through "
+                      "its arguments: the volume's bounds are computed from the new values "
+                      "when params.update() is called and when the function is called. Call "
+                      "params.update() before the frozen function, and pass it the scene (or "
+                      "the volume)", filename);
+    }
+
     /// The values changed: the value policy and max() on the backend (see
     /// above); sets the sampler's bounds and returns them. `filename`: for
     /// errors. The same variable as last time (see bounded_index): nothing
@@ -122,6 +136,7 @@ template <typename Float> struct IndexUpdates {
         namespace dr = drjit;
         if (bounded_index != 0 && values_index(s) == bounded_index)
             return bounded;
+        refuse_while_recording(filename);
         auto &values = s.index_values;
         const uint32_t channels = s.index_channels;
         float largest[3] = { background[0], background[1], background[2] };
