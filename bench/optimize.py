@@ -187,7 +187,10 @@ def main():
         params[pkey] = mi.Float(truth.astype(np.float32))
     params.update()
     timed = []
-    for r in range(a.timing_rounds + 1):
+    # (--freeze: two untimed rounds; Dr.Jit records each view's step twice,
+    # before and after its sensor's sampler has arrays)
+    warm_rounds = 2 if a.freeze else 1
+    for r in range(a.timing_rounds + warm_rounds):
         for v in range(a.views):
             dr.enable_grad(params[pkey])
             params.update()
@@ -196,12 +199,12 @@ def main():
             g = dr.grad(params[pkey])
             dr.eval(g)
             dr.sync_thread()
-            if r > 0:
+            if r >= warm_rounds:
                 timed.append(time.perf_counter() - t0)
             dr.disable_grad(params[pkey])
     step_at_target = statistics.median(timed)
     print(f"render + backward at the target's values: {step_at_target:.3f} s (median of "
-          f"{len(timed)})", flush=True)
+          f"{len(timed)})" + (f", {frozen.n_recordings} recordings" if frozen else ""), flush=True)
     # nanovdbvolume: what an update costs (issue 36): params.update() (the
     # value policy and max() on the backend), then the per-node majorants
     # rebuilt (on the host, when the walk next asks: mi.traverse asks too);

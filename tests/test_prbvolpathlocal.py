@@ -381,15 +381,21 @@ def test11_majorant_rebuild_names_a_bad_choice(ad_rgb):
         mi.load_dict(dict(ball_volume(), majorant_rebuild="gpu"))
 
 
-@pytest.mark.parametrize("majorant_rebuild", ["backend", "host"])
-def test12_frozen_step_follows_updates(ad_rgb, majorant_rebuild):
+@pytest.mark.parametrize("variant, majorant_rebuild", [("llvm_ad_rgb", "backend"),
+                                                       ("llvm_ad_rgb", "host"),
+                                                       ("cuda_ad_rgb", "backend")])
+def test12_frozen_step_follows_updates(variant, majorant_rebuild):
     """A step (render + backward) frozen with dr.freeze, Mitsuba's way of
     leaving out the Python tracing of the PRB loops, replayed after updates
     that move the values (100x, half the box 0, scaled at random: the
     majorants and max() all change): its image and gradient equal an
     unfrozen step's with the same seed on a twin scene, and it was
     replayed, not re-recorded. Recorded at small values, then replayed at
-    100x: a replay that kept the recording's table or loop bounds differs"""
+    100x: a replay that kept the recording's table or loop bounds differs.
+    LLVM, and CUDA where a GPU is (the offline GPU kit)"""
+    _setup_variant(variant)
+    import nanovdb_mitsuba
+    nanovdb_mitsuba.setup()
     volume = dict(ball_volume("stochastic_trilinear"), majorant_rebuild=majorant_rebuild)
     del volume["max_value"]  # (max() follows the values)
     scenes = [medium_scene(volume, "prbvolpathlocal", res=16, spp=4) for _ in range(2)]
@@ -465,3 +471,63 @@ def test13_update_inside_a_frozen_function_is_refused(ad_rgb):
     assert any(re.search(r'"data: a 24 x 24 x 24 tensor.*": "data" was updated inside a frozen '
                          r'function.*Call params.update\(\) before the frozen function', m)
                for m in chain), chain
+
+
+@pytest.mark.parametrize("variant", ["llvm_ad_mono", "llvm_ad_spectral"])
+def test14_mono_and_spectral(variant):
+    """The other colour variants: the image in expectation equals volpath's
+    (4x4 blocks of pixels, 8 seeds each), and the gradient of the image
+    mean with respect to "data", summed over the values, equals
+    prbvolpath's within its standard error"""
+    _setup_variant(variant)
+    import nanovdb_mitsuba
+    nanovdb_mitsuba.setup()
+    blocks, totals = {}, {}
+    for integrator, reference in (("prbvolpathlocal", "volpath"), ("prbvolpath", None)):
+        scene = medium_scene(ball_volume(lopsided=True), integrator, res=16, spp=16)
+        params = mi.traverse(scene)
+        key = data_key(params)
+        rows, grads = [], []
+        for seed in range(8):
+            dr.enable_grad(params[key])
+            params.update()
+            image = mi.render(scene, params, seed=seed)
+            dr.backward(dr.mean(image))
+            img = np.array(image).mean(axis=-1)
+            rows.append(img.reshape(4, 4, 4, 4).mean(axis=(1, 3)).ravel())
+            grads.append([float(np.sum(np.array(dr.grad(params[key]))))])
+            dr.disable_grad(params[key])
+        totals[integrator] = grads
+        if reference:
+            ref = medium_scene(ball_volume(lopsided=True), reference, res=16, spp=16)
+            blocks[reference] = [np.array(mi.render(ref, seed=100 + s)).mean(axis=-1)
+                                 .reshape(4, 4, 4, 4).mean(axis=(1, 3)).ravel() for s in range(8)]
+            blocks[integrator] = rows
+    z = z_scores(blocks["prbvolpathlocal"], blocks["volpath"])
+    zg = z_scores(totals["prbvolpathlocal"], totals["prbvolpath"])[0]
+    print(f"{variant}: block z max {np.abs(z).max():.2f}, gradient total z {zg:.2f} "
+          f"({np.mean(totals['prbvolpathlocal']):.4g} vs {np.mean(totals['prbvolpath']):.4g})")
+    assert np.abs(z).max() < 4.0
+    assert np.mean(blocks["prbvolpathlocal"]) > 0.05
+    assert abs(zg) < 4.0 and np.mean(totals["prbvolpath"]) != 0
+
+
+def test15_registered_in_every_ad_variant_switched_to():
+    """mi.set_variant from one *_ad_* variant to another: prbvolpathlocal
+    derives from the new variant's integrator (planted, the module reloaded
+    before Mitsuba's own AD integrators: scenes in llvm_ad_spectral and
+    llvm_ad_mono loaded it as no integrator at all)"""
+    import nanovdb_mitsuba  # noqa: F401 (registers it on every switch)
+    seen = []
+    for variant in ("llvm_ad_rgb", "llvm_ad_spectral", "llvm_ad_rgb", "scalar_rgb",
+                    "llvm_ad_mono", "llvm_ad_rgb"):
+        if variant not in mi.variants():
+            continue
+        mi.set_variant(variant)
+        if variant.startswith("scalar"):
+            continue
+        scene = mi.load_dict({"type": "scene", "integrator": {"type": "prbvolpathlocal"}})
+        assert scene.integrator() is not None, f"{variant}: prbvolpathlocal loaded as None"
+        assert type(scene.integrator()).__name__ == "PRBVolpathLocalIntegrator"
+        seen.append(variant)
+    assert len(seen) >= 2, seen

@@ -78,6 +78,12 @@ def _register_python_integrators(mi):
         if not variant or "_ad_" not in variant or "polarized" in variant:
             return
         import importlib
+        # Mitsuba reloads its AD integrators for the new variant, but maybe
+        # after this callback: prbvolpathlocal's base class must be the new
+        # variant's (else scenes load it as no integrator at all)
+        import mitsuba.ad.integrators as ad_integrators
+        if not issubclass(ad_integrators.common.RBIntegrator, mi.Integrator):
+            importlib.reload(ad_integrators)
         from . import prbvolpathlocal
         importlib.reload(prbvolpathlocal).register()
 

@@ -144,14 +144,17 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
         self.is_prepared = False
 
     def prepare_scene(self, scene):
-        # prbvolpathlocal: prepared per scene (upstream: once)
-        if self.is_prepared and self.prepared_for == id(scene):
+        # prbvolpathlocal: prepared per scene and media (upstream: once).
+        # The scene is remembered by its id and its media's, not held: Dr.Jit's
+        # traversal of the integrator (dr.freeze) would recurse through it
+        media = [m for shape in scene.shapes()
+                 for m in (shape.interior_medium(), shape.exterior_medium())]
+        key = (id(scene), tuple(medium_index(m) for m in media if m is not None))
+        if self.is_prepared and self.prepared_for == key:
             return
         # prbvolpathlocal: the tracked media (as volpathlocal finds them)
         self.tracked = []
         seen = set()
-        media = [m for shape in scene.shapes()
-                 for m in (shape.interior_medium(), shape.exterior_medium())]
         # (the shapes' media only: paths start outside media here, as upstream)
         for m in media:
             if m is None or medium_index(m) in seen:
@@ -159,7 +162,7 @@ class PRBVolpathLocalIntegrator(RBIntegrator):
             seen.add(medium_index(m))
             if self.bridge.tracked(m, self.max_ratio):  # (2: it emits; fly() sees to that)
                 self.tracked.append((m, medium_index(m)))
-        self.prepared_for = id(scene)
+        self.prepared_for = key
 
         for shape in scene.shapes():
             for medium in [shape.interior_medium(), shape.exterior_medium()]:
