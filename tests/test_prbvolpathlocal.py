@@ -531,3 +531,38 @@ def test15_registered_in_every_ad_variant_switched_to():
         assert type(scene.integrator()).__name__ == "PRBVolpathLocalIntegrator"
         seen.append(variant)
     assert len(seen) >= 2, seen
+
+
+@pytest.mark.xfail(strict=True, raises=RuntimeError,
+                   reason="not yet: Dr.Jit refuses to record a render of emissiveheterogeneous "
+                          "(a variable read that is not among the inputs; with volpathlocal's "
+                          "next-event estimation, its emission table is not traversed)")
+def test16_frozen_step_of_an_emissive_medium(ad_rgb):
+    """The emission grid's values updated between frozen steps: the same
+    check as test12, for emissiveheterogeneous (emission at collisions)"""
+    scenes = [scaled_medium_scene("emission", "prbvolpathlocal", spp=4, res=12) for _ in range(2)]
+    key = next(k for k in mi.traverse(scenes[0]).keys() if k.endswith("emission.data"))
+
+    def step(scene, seed):
+        params = mi.traverse(scene)
+        params.keep(key)
+        image = mi.render(scene, params, seed=seed)
+        dr.backward(dr.mean(image))
+        return image
+
+    frozen = dr.freeze(step)
+    d = np.array(mi.traverse(scenes[0])[key])
+    out = {}
+    for scene, f in zip(scenes, (frozen, step)):
+        params = mi.traverse(scene)
+        for i, factor in enumerate((0.5, 0.8, 100.0, 0.0)):
+            params[key] = mi.Float((d * factor).astype(np.float32))
+            params.update()
+            dr.enable_grad(params[key])
+            params.update()
+            image = f(scene, dr.opaque(mi.UInt32, i))
+            out.setdefault(i, []).append((np.array(image), np.array(dr.grad(params[key]))))
+            dr.disable_grad(params[key])
+    for (img_f, g_f), (img, g) in out.values():
+        np.testing.assert_allclose(img_f, img, rtol=1e-5, atol=1e-6 * np.abs(img).max())
+        np.testing.assert_allclose(g_f, g, rtol=0, atol=1e-5 * np.abs(g).max())
