@@ -431,9 +431,11 @@ private:
     double m_table_bytes = 0.0, m_table_seconds = 0.0; ///< traverse()'s copies
     mutable std::atomic<bool> m_sampling_warned{ false };
 
-    // emissiveheterogeneous: and its own JIT members
-    MI_TRAVERSE_CB(Base, m_sigmat, m_albedo, m_max_density, m_bbox, m_emission, m_temperature,
-                   m_color, m_d65)
+    // emissiveheterogeneous: and its own JIT members (the box by its corners:
+    // BoundingBox is no Dr.Jit structure, and Dr.Jit's traversal skipped it,
+    // so dr.freeze refused to record a render that reads it)
+    MI_TRAVERSE_CB(Base, m_sigmat, m_albedo, m_max_density, m_bbox.min, m_bbox.max, m_emission,
+                   m_temperature, m_color, m_d65)
 };
 
 MI_EXPORT_PLUGIN(EmissiveHeterogeneousMedium) // emissiveheterogeneous: its own name
