@@ -28,6 +28,7 @@
 #include <mitsuba/core/vector.h>
 
 #include <nanovdb_drjit/emission_sampling.h>
+#include <nanovdb_drjit/traverse.h>
 #include <nanovdb_loader/emission_table.h>
 #include <nanovdb_mitsuba/grid_units.h>
 
@@ -151,6 +152,9 @@ public:
         }
         return dr::select(active && found, prob / volume, 0.f);
     }
+
+    /// Its table, for Dr.Jit's traversal (a frozen function's inputs)
+    NVDB_TRAVERSE(m_table)
 
 private:
     decltype(auto) words() const {

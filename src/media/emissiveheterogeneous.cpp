@@ -299,6 +299,17 @@ public:
     bool prepare_emission_sampling() const override {
         if (m_sampling_built)
             return m_sampling.valid();
+        m_sampling_requested = true;
+        // (inside the recording of a frozen function, which cannot replay
+        // the build's read-back: no table this time. The next call builds
+        // it before recording again, when Dr.Jit traverses the medium)
+        if constexpr (dr::is_jit_v<Float>)
+            if (jit_flag(JitFlag::FreezingScope)) {
+                Log(Debug, "emissiveheterogeneous: %s: no emission table inside a frozen "
+                           "function's first recording: its emission is rendered by "
+                           "collisions there", describe(emitter_volume()));
+                return false;
+            }
         m_sampling_built = true;
         const Volume *v = emitter_volume();
         const auto *units = dynamic_cast<const GridUnits<Float, Spectrum> *>(v);
@@ -428,14 +439,28 @@ private:
     /// built on the integrator's request, again after a parameter change
     mutable EmissionDistribution<Float, Spectrum> m_sampling;
     mutable bool m_sampling_built = false;
+    mutable bool m_sampling_requested = false; ///< an integrator asked for the table
     double m_table_bytes = 0.0, m_table_seconds = 0.0; ///< traverse()'s copies
     mutable std::atomic<bool> m_sampling_warned{ false };
 
     // emissiveheterogeneous: and its own JIT members (the box by its corners:
     // BoundingBox is no Dr.Jit structure, and Dr.Jit's traversal skipped it,
-    // so dr.freeze refused to record a render that reads it)
-    MI_TRAVERSE_CB(Base, m_sigmat, m_albedo, m_max_density, m_bbox.min, m_bbox.max, m_emission,
-                   m_temperature, m_color, m_d65)
+    // so dr.freeze refused to record a render that reads it), and the
+    // emission table, built first where an integrator asked for it and the
+    // values changed since (dr.freeze traverses the medium before it
+    // records or replays; a replay runs no C++ of ours)
+#define EMISSIVE_MEMBERS m_sigmat, m_albedo, m_max_density, m_bbox.min, m_bbox.max, m_emission, \
+                         m_temperature, m_color, m_d65, m_sampling
+    void traverse_1_cb_ro(void *payload, drjit::detail::traverse_callback_ro fn) const override {
+        if (!jit_flag(JitFlag::EnableObjectTraversal))
+            return;
+        if (m_sampling_requested && !m_sampling_built && !jit_flag(JitFlag::FreezingScope))
+            prepare_emission_sampling();
+        Base::traverse_1_cb_ro(payload, fn);
+        DRJIT_MAP(DR_TRAVERSE_MEMBER_RO, EMISSIVE_MEMBERS)
+    }
+    MI_TRAVERSE_CB_RW(Base, EMISSIVE_MEMBERS)
+#undef EMISSIVE_MEMBERS
 };
 
 MI_EXPORT_PLUGIN(EmissiveHeterogeneousMedium) // emissiveheterogeneous: its own name

@@ -1109,7 +1109,7 @@ private:
     // function reads the current table and bounds (a replay runs no C++ of
     // ours: the walk's own request comes only while it records)
 #define NVDB_VOLUME_MEMBERS m_sampler, m_second, m_resolution, m_index_from_world, \
-                            m_cell_from_world, m_world_from_cell
+                            m_cell_from_world, m_world_from_cell, m_tile_table
     void traverse_1_cb_ro(void *payload, drjit::detail::traverse_callback_ro fn) const override {
         if (!jit_flag(JitFlag::EnableObjectTraversal))
             return;
