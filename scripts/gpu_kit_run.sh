@@ -16,7 +16,7 @@
 #      toward the fire against collisions alone) and bench/optimize.py (prbvolpath on the
 #      shared smoke through gridvolume and nanovdbvolume, trilinear and
 #      stochastic_trilinear, and prbvolpathlocal through the tree's local
-#      majorants with stochastic_trilinear),
+#      majorants with stochastic_trilinear, unfrozen and frozen),
 # and writes logs and results to --out. Needs: Python 3 with numpy and pytest
 # (the version the kit was packed for), an NVIDIA driver.
 #
@@ -196,6 +196,11 @@ if want optimize; then
     "$PYTHON" bench/optimize.py --variant cuda_ad_rgb --target "$d/smoke.nvdb" \
         --plugin nanovdbvolume --reference "$d/smoke.vol" --filter stochastic_trilinear \
         --integrator prbvolpathlocal --out "$o" $OPTIMIZE_ARGS || rc=1
+    # ... and its steps frozen (dr.freeze; docs/differentiable.md "Frozen steps")
+    # shellcheck disable=SC2086
+    "$PYTHON" bench/optimize.py --variant cuda_ad_rgb --target "$d/smoke.nvdb" \
+        --plugin nanovdbvolume --reference "$d/smoke.vol" --filter stochastic_trilinear \
+        --integrator prbvolpathlocal --freeze --out "$o" $OPTIMIZE_ARGS || rc=1
     return $rc
   }
   export H OUT PYTHON OPTIMIZE_ARGS   # (what optimize reads, in step's child bash too)
