@@ -22,6 +22,7 @@
 
 #include <mitsuba/core/logger.h>
 #include <drjit/jit.h>
+#include <nanovdb_mitsuba/frozen.h>
 
 #include <atomic>
 #include <mutex>
@@ -33,14 +34,6 @@ NAMESPACE_BEGIN(mitsuba)
 /// The loops whose iterations are bounded, as bits of a `tripped` mask
 enum LoopBound : uint32_t { PathLoop = 0, ShadowLoop, WalkLoop, DeltaLoop, RatioLoop,
                             LoopCount };
-
-/// Inside the recording of a frozen function (dr.freeze): no reads
-template <typename Float> bool recording_frozen_function() {
-    if constexpr (dr::is_jit_v<Float>)
-        return jit_flag(JitFlag::FreezingScope);
-    else
-        return false;
-}
 
 /// The lanes each loop bound stopped, counted over renders
 template <typename Float> class LoopTrips {

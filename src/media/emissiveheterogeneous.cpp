@@ -11,6 +11,7 @@
 #include <nanovdb_mitsuba/blackbody.h>
 #include <nanovdb_mitsuba/grid_units.h>
 #include <nanovdb_mitsuba/emissive_medium.h>
+#include <nanovdb_mitsuba/frozen.h>
 #include <nanovdb_mitsuba/volume_source.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
 
@@ -303,13 +304,12 @@ public:
         // (inside the recording of a frozen function, which cannot replay
         // the build's read-back: no table this time. The next call builds
         // it before recording again, when Dr.Jit traverses the medium)
-        if constexpr (dr::is_jit_v<Float>)
-            if (jit_flag(JitFlag::FreezingScope)) {
-                Log(Debug, "emissiveheterogeneous: %s: no emission table inside a frozen "
-                           "function's first recording: its emission is rendered by "
-                           "collisions there", describe(emitter_volume()));
-                return false;
-            }
+        if (recording_frozen_function<Float>()) {
+            Log(Debug, "emissiveheterogeneous: %s: no emission table inside a frozen "
+                       "function's first recording: its emission is rendered by collisions "
+                       "there", describe(emitter_volume()));
+            return false;
+        }
         m_sampling_built = true;
         const Volume *v = emitter_volume();
         const auto *units = dynamic_cast<const GridUnits<Float, Spectrum> *>(v);
@@ -327,6 +327,14 @@ public:
         Log(Debug, "emissiveheterogeneous: %s: emission table of %zu bytes in %.3f s",
             describe(v), m_sampling.bytes(), m_sampling.build_seconds());
         return true;
+    }
+
+    /// emissiveheterogeneous: the table again where an integrator asked for
+    /// it and the values changed since, outside a recording (Dr.Jit's
+    /// traversal, below; nanovdb_mitsuba/frozen.h)
+    void refresh_emission_sampling() const {
+        if (m_sampling_requested && !m_sampling_built && !recording_frozen_function<Float>())
+            prepare_emission_sampling();
     }
 
     double emission_power() const override { return m_sampling.power(); }
@@ -449,18 +457,9 @@ private:
     // emission table, built first where an integrator asked for it and the
     // values changed since (dr.freeze traverses the medium before it
     // records or replays; a replay runs no C++ of ours)
-#define EMISSIVE_MEMBERS m_sigmat, m_albedo, m_max_density, m_bbox.min, m_bbox.max, m_emission, \
-                         m_temperature, m_color, m_d65, m_sampling
-    void traverse_1_cb_ro(void *payload, drjit::detail::traverse_callback_ro fn) const override {
-        if (!jit_flag(JitFlag::EnableObjectTraversal))
-            return;
-        if (m_sampling_requested && !m_sampling_built && !jit_flag(JitFlag::FreezingScope))
-            prepare_emission_sampling();
-        Base::traverse_1_cb_ro(payload, fn);
-        DRJIT_MAP(DR_TRAVERSE_MEMBER_RO, EMISSIVE_MEMBERS)
-    }
-    MI_TRAVERSE_CB_RW(Base, EMISSIVE_MEMBERS)
-#undef EMISSIVE_MEMBERS
+    NVDB_MI_TRAVERSE_CB_REFRESHED(Base, refresh_emission_sampling(), m_sigmat, m_albedo,
+                                  m_max_density, m_bbox.min, m_bbox.max, m_emission,
+                                  m_temperature, m_color, m_d65, m_sampling)
 };
 
 MI_EXPORT_PLUGIN(EmissiveHeterogeneousMedium) // emissiveheterogeneous: its own name

@@ -11,6 +11,7 @@
 #include <nanovdb_loader/majorants.h>
 #include <nanovdb_loader/vdb_import.h>
 #include <nanovdb_mitsuba/volume_source.h>
+#include <nanovdb_mitsuba/frozen.h>
 #include <nanovdb_mitsuba/grid_units.h>
 #include <nanovdb_mitsuba/local_majorants.h>
 #include <nanovdb_mitsuba/plugin_variants.h>
@@ -1102,23 +1103,14 @@ private:
     };
     static inline thread_local Offsets s_offsets = { nullptr, nullptr };
 
-    // Dr.Jit's traversal of the volume's variables (MI_TRAVERSE_CB's, which
-    // these two methods spell out): dr.freeze reads them as a frozen
-    // function's inputs, each time before it records or replays. The
-    // per-node majorants of updated values are rebuilt first, so that the
-    // function reads the current table and bounds (a replay runs no C++ of
-    // ours: the walk's own request comes only while it records)
-#define NVDB_VOLUME_MEMBERS m_sampler, m_second, m_resolution, m_index_from_world, \
-                            m_cell_from_world, m_world_from_cell, m_tile_table
-    void traverse_1_cb_ro(void *payload, drjit::detail::traverse_callback_ro fn) const override {
-        if (!jit_flag(JitFlag::EnableObjectTraversal))
-            return;
-        node_majorants();
-        Base::traverse_1_cb_ro(payload, fn);
-        DRJIT_MAP(DR_TRAVERSE_MEMBER_RO, NVDB_VOLUME_MEMBERS)
-    }
-    MI_TRAVERSE_CB_RW(Base, NVDB_VOLUME_MEMBERS)
-#undef NVDB_VOLUME_MEMBERS
+    // Dr.Jit's traversal of the volume's variables: dr.freeze reads them as
+    // a frozen function's inputs, each time before it records or replays.
+    // The per-node majorants of updated values are rebuilt first, so that
+    // the function reads the current table and bounds (a replay runs no C++
+    // of ours: the walk's own request comes only while it records)
+    NVDB_MI_TRAVERSE_CB_REFRESHED(Base, node_majorants(), m_sampler, m_second, m_resolution,
+                                  m_index_from_world, m_cell_from_world, m_world_from_cell,
+                                  m_tile_table)
 };
 
 MI_EXPORT_PLUGIN(NanoVDBVolume)

@@ -31,6 +31,7 @@
 #pragma once
 
 #include <mitsuba/core/logger.h>
+#include <nanovdb_mitsuba/frozen.h>
 
 #include <nanovdb_drjit/majorant_rebuild.h>
 #include <nanovdb_drjit/sampler.h>
@@ -119,14 +120,13 @@ template <typename Float> struct IndexUpdates {
     /// bound), which the recording of a frozen function (dr.freeze) cannot
     /// replay: refused while one records, saying what to do instead
     static void refuse_while_recording(const std::string &filename) {
-        if constexpr (drjit::is_jit_v<Float>)
-            if (jit_flag(JitFlag::FreezingScope))
-                Throw("nanovdbvolume: \"%s\": \"data\" was updated inside a frozen function "
-                      "(dr.freeze), or the function reaches the volume other than through "
-                      "its arguments: the volume's bounds are computed from the new values "
-                      "when params.update() is called and when the function is called. Call "
-                      "params.update() before the frozen function, and pass it the scene (or "
-                      "the volume)", filename);
+        if (mitsuba::recording_frozen_function<Float>())
+            Throw("nanovdbvolume: \"%s\": \"data\" was updated inside a frozen function "
+                  "(dr.freeze), or the function reaches the volume other than through "
+                  "its arguments: the volume's bounds are computed from the new values "
+                  "when params.update() is called and when the function is called. Call "
+                  "params.update() before the frozen function, and pass it the scene (or "
+                  "the volume)", filename);
     }
 
     /// The values changed: the value policy and max() on the backend (see
