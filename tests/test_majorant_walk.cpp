@@ -55,6 +55,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <random>
 #include <vector>
 
@@ -588,14 +589,13 @@ TEST_CASE("majorant table: many threads build what one thread builds, bit for bi
 /// The backend's rebuild (nanovdb_drjit/majorant_rebuild.h, LLVM) of an
 /// index grid's table from `values`, as MajorantGrid::make writes it
 /// (and its mean bound over `box`, clamped to `clamp`)
-std::vector<uint32_t> rebuilt_table(const ndr::MajorantRebuildPlan &plan,
+std::vector<uint32_t> rebuilt_table(const ndr::MajorantRebuild<dr::LLVMArray<float>> &rebuild,
                                     const std::vector<uint32_t> &words,
                                     const std::vector<float> &values, float background,
                                     float factor, const loader::IndexBox &box, float clamp,
-                                    double &mean, uint32_t leaf_chunk, uint32_t lower_chunk) {
+                                    double &mean) {
     using Float = dr::LLVMArray<float>;
     using UInt32 = dr::uint32_array_t<Float>;
-    const ndr::MajorantRebuild<Float> rebuild(plan, leaf_chunk, lower_chunk);
     const float bg[3] = { background, background, background };
     typename ndr::MajorantRebuild<Float>::Box b;
     for (int a = 0; a < 3; ++a) {
@@ -625,8 +625,13 @@ TEST_CASE("majorant table: the backend's rebuild equals the host's, bit for bit"
     // Index grids of every test grid, their values then changed as an
     // update changes them (raised 100x, set to 0, scaled), rebuilt on LLVM
     // from the values and the plan alone; against node_majorants of the
-    // same values, for rings 1 and 2
+    // same values, for rings 1 and 2. Each update twice, the second time
+    // with its values halved: one rebuild per grid and ring, whose second
+    // call replays the first's kernels (kernel_replay.h)
     jit_init(1u << (uint32_t) JitBackend::LLVM);
+    using Rebuild = ndr::MajorantRebuild<dr::LLVMArray<float>>;
+    std::map<std::pair<std::string, int>, Rebuild> rebuilds;
+    uint32_t replays = 0;
     std::vector<std::pair<std::string, Handle>> handles;
     for (const char *name : { "fog_sphere", "noisy_cloud", "random_cube", "lower_tiles",
                               "upper_tiles", "root_tiles_negative", "far_coords", "single_voxel",
@@ -655,48 +660,61 @@ TEST_CASE("majorant table: the backend's rebuild equals the host's, bit for bit"
                     : r < 0.1f ? 100.f * x : r < 0.4f ? 0.f : x * 3.f * u(rng);
             }
             const float background = update == 0 ? made.values.background[0] : values.empty() ? 0.f : values[0];
-            const loader::ValidatedGrid v = loader::validate_grid(
-                name, index_words.data(), made.bytes.size(),
-                loader::IndexValues{ values.data(), values.size(),
-                                     { background, background, background } });
-            for (int ring : { 1, 2 }) {
-                CAPTURE(ring);
-                std::string why;
-                const std::optional<ndr::MajorantRebuildPlan> plan =
-                    loader::majorant_rebuild_plan(v, ring, &why);
-                CAPTURE(why);
-                REQUIRE(plan.has_value());
-                const float factor = 1.f + 0x1p-20f;
-                const loader::NodeMajorants host = loader::node_majorants(v, ring);
-                const loader::IndexBox box = loader::lookup_box(v.summary(), 1);
-                const float clamp = v.values().max;
-                double mean = 0.0;
-                // (ring 2: 7 leaves and 1 lower node a pass, so that the
-                // passes must join; ring 1: the defaults)
-                const bool small_chunks = ring == 2;
-                const std::vector<uint32_t> want = host_table(host, factor),
-                                            got = rebuilt_table(*plan, index_words, values, background,
-                                                                factor, box, clamp, mean,
-                                                                small_chunks ? 7u : 1u << 16,
-                                                                small_chunks ? 1u : 256u);
-                // (the mean bound, to rounding: another order of sums, bounds x
-                // factor / factor)
-                const double mean_want = loader::mean_bound(v, host, box, clamp);
-                CHECK(std::abs(mean - mean_want) <= 1e-6 * mean_want + 1e-30);
-                REQUIRE(got.size() == want.size());
-                size_t differ = 0, first = want.size();
-                for (size_t i = 0; i < want.size(); ++i)
-                    if (got[i] != want[i]) {
-                        if (differ++ == 0)
-                            first = i;
-                    }
-                CAPTURE(first);
-                CHECK(differ == 0);
-                compared += want.size();
+            for (int again = 0; again < 2; ++again) {
+                CAPTURE(again);
+                if (again)
+                    for (float &x : values)
+                        x *= 0.5f;
+                const loader::ValidatedGrid v = loader::validate_grid(
+                    name, index_words.data(), made.bytes.size(),
+                    loader::IndexValues{ values.data(), values.size(),
+                                         { background, background, background } });
+                for (int ring : { 1, 2 }) {
+                    CAPTURE(ring);
+                    std::string why;
+                    const std::optional<ndr::MajorantRebuildPlan> plan =
+                        loader::majorant_rebuild_plan(v, ring, &why);
+                    CAPTURE(why);
+                    REQUIRE(plan.has_value());
+                    const float factor = 1.f + 0x1p-20f;
+                    const loader::NodeMajorants host = loader::node_majorants(v, ring);
+                    const loader::IndexBox box = loader::lookup_box(v.summary(), 1);
+                    // (the second time below the values: the clamp binds)
+                    const float clamp = again ? 0.25f * v.values().max : v.values().max;
+                    double mean = 0.0;
+                    // (ring 2: 7 leaves and 1 lower node a pass, so that the
+                    // passes must join; ring 1: the defaults)
+                    const bool small_chunks = ring == 2;
+                    auto at = rebuilds.try_emplace(
+                        { name, ring }, *plan, small_chunks ? 7u : 1u << 16, small_chunks ? 1u : 256u).first;
+                    const uint32_t replays_before = at->second.replay().replays();
+                    const std::vector<uint32_t> want = host_table(host, factor),
+                                                got = rebuilt_table(at->second, index_words, values,
+                                                                    background, factor, box, clamp, mean);
+                    // (the same constants as the call before: a replay)
+                    if (again)
+                        CHECK(at->second.replay().replays() == replays_before + 1);
+                    replays += at->second.replay().replays() - replays_before;
+                    // (the mean bound, to rounding: another order of sums, bounds x
+                    // factor / factor)
+                    const double mean_want = loader::mean_bound(v, host, box, clamp);
+                    CHECK(std::abs(mean - mean_want) <= 1e-6 * mean_want + 1e-30);
+                    REQUIRE(got.size() == want.size());
+                    size_t differ = 0, first = want.size();
+                    for (size_t i = 0; i < want.size(); ++i)
+                        if (got[i] != want[i]) {
+                            if (differ++ == 0)
+                                first = i;
+                        }
+                    CAPTURE(first);
+                    CHECK(differ == 0);
+                    compared += want.size();
+                }
             }
         }
     }
-    MESSAGE(compared << " slots compared");
+    MESSAGE(compared << " slots compared, " << replays << " of the rebuilds replayed");
+    CHECK(replays > 0);
 }
 
 TEST_CASE("majorant walk: a ring of 2 bounds the tricubic reach, a ring of 1 does not") {

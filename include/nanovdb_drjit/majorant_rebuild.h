@@ -13,11 +13,12 @@
       1. each value index's bound (its largest channel) and smallest channel;
       2. the leaves, a plane of 8 x 8 voxels per lane, then a leaf: max and
          min over each of the 27 layers of a leaf (per axis: all of it, its
-         `ring` lowest or highest voxels), the mean, the smallest channel:
-         what a neighbour's ring reads of it;
+         `ring` lowest or highest voxels; a packet of 32 a leaf), the mean,
+         the smallest channel: what a neighbour's ring reads of it;
       3. the lower nodes' entries: the ringed max and min of a leaf or a
-         tile (rings(): a 3^3 filter of the node's tile values, and the 26
-         neighbouring cells where a child or another node is near), then,
+         tile (rings(): a 3^3 filter of the node's tile values with the
+         values beyond its faces, and the 26 neighbouring cells where a
+         child or another node of the level is near), then,
          a lane each in brick order, the bricks and the node by block
          reductions; the 8-bit fractions and controls, four entries to a
          word;
@@ -26,8 +27,10 @@
       6. the root tiles and the background; and, when asked, the mean
          bound (local_majorant_ratio) of the new table.
 
-    Measured (llvm_ad_rgb, 2 cores): 7.0 ms for cloudfield_400's 1.8 M
-    values, against 36 ms for the host's passes (bench/PERF_LOG.md §46).
+    The first call records its kernels, later ones replay them on the new
+    values (kernel_replay.h): the host traces nothing. Measured (llvm_ad_rgb,
+    2 cores): 4.2 ms for cloudfield_400's 1.8 M values, against 36 ms for
+    the host's passes (bench/PERF_LOG.md §46, §48).
 
     Sums of means (the controls' c) are added in another order than the
     host's: a control can differ where its c lies within rounding of a
@@ -36,6 +39,7 @@
 
 #pragma once
 
+#include "kernel_replay.h"
 #include "layout.h"
 #include "majorant_table.h"
 #include "majorant_walk.h"
@@ -45,6 +49,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <vector>
 
@@ -108,6 +113,17 @@ public:
     };
 
     bool valid() const { return m_layout.size != 0; }
+
+    /// About the bytes of the arrays a rebuild allocates and frees (its
+    /// largest passes' at once: a chunk of planes, the leaves' layers, a
+    /// chunk of lower nodes' entries, the upper nodes' entries)
+    size_t scratch_bytes() const {
+        const size_t leaves = m_leaves, lowers = m_lowers, uppers = m_uppers;
+        return std::min<size_t>(leaves, m_leaf_chunk) * 8 * 84 + leaves * (2 * LEAF_STRIDE + 3) * 4 +
+               std::min<size_t>(lowers, m_lower_chunk) * LOWER_ENTRY_COUNT * 40 +
+               lowers * NODE_STRIDE * LOWER_DIM * LOWER_DIM * 8 +
+               uppers * UPPER_DIM * UPPER_DIM * UPPER_DIM * 40;
+    }
     uint32_t background_slot() const { return m_layout.background_slot; }
 
     /// The table's words from the grid's words and its values (`channels`
@@ -118,6 +134,54 @@ public:
     UInt32 table(const UInt32 &grid, const Float &values, uint32_t channels,
                  const float background[3], float factor, Float64 *mean = nullptr,
                  const Box *box = nullptr) const {
+        namespace dr = drjit;
+        // Replayed (kernel_replay.h): inputs the values, the tree, the plan's
+        // arrays and the clamp (max(), which updates change); constants the
+        // rest, the key
+        const Float clamp = dr::opaque<Float>(box ? box->clamp : 0.f);
+        std::vector<uint32_t> inputs = {
+            grid.index(), values.index(), clamp.index(), m_at.leaf_begin.index(),
+            m_at.leaf_words.index(), m_at.lower_slot.index(), m_at.upper_slot.index(),
+            m_at.tile_slot.index(), m_at.background_slot.index(), m_lower_entries.index(),
+            m_upper_entries.index(), m_lower_around.index(), m_upper_around.index(),
+            m_tile_codes.index(), m_tile_around.index(), m_tile_index.index(),
+            m_background_codes.index(), m_background_layers.index(), m_lower_origins.index(),
+            m_upper_origins.index(), m_tile_origins.index(), m_lower_parent.index(),
+            m_lower_slow.index(), m_upper_slow.index()
+        };
+        auto bits32 = [](float f) {
+            uint32_t u;
+            std::memcpy(&u, &f, 4);
+            return uint64_t(u);
+        };
+        std::vector<uint64_t> key = { channels, bits32(background[0]), bits32(background[1]),
+                                      bits32(background[2]), bits32(factor), mean != nullptr };
+        if (box)
+            for (int a = 0; a < 3; ++a)
+                key.insert(key.end(), { uint64_t(uint32_t(box->lo[a])), uint64_t(uint32_t(box->hi[a])) });
+        const std::vector<uint32_t> out =
+            m_replay.run(dr::backend_v<Float>, inputs, key, [&]() {
+                Float64 m;
+                UInt32 t = traced_table(grid, values, channels, background, factor,
+                                        mean ? &m : nullptr, box, clamp);
+                std::vector<uint32_t> o = { t.release() };
+                if (mean)
+                    o.push_back(m.release());
+                return o;
+            });
+        if (mean)
+            *mean = Float64::steal(out[1]);
+        return UInt32::steal(out[0]);
+    }
+
+    /// The rebuild's replays (kernel_replay.h)
+    const KernelReplay &replay() const { return m_replay; }
+
+private:
+    /// table(), traced
+    UInt32 traced_table(const UInt32 &grid, const Float &values, uint32_t channels,
+                        const float background[3], float factor, Float64 *mean, const Box *box,
+                        const Float &clamp) const {
         namespace dr = drjit;
         Bounds bound, low;
         value_bounds(values, channels, background, bound, low);
@@ -133,13 +197,19 @@ public:
                     upper_min);
         tiles(upper_M, upper_max, bound, factor, out);
         dr::eval(out);
-        if (mean)
-            *mean = mean_bound(out, bound, *box, factor);
+        if (mean) {
+            *mean = mean_bound(out, bound, *box, factor, clamp);
+            dr::eval(*mean);
+        }
         return out;
     }
 
-private:
     static constexpr uint32_t LOWER_DIM = 16, UPPER_DIM = 32;
+    /// A leaf's 27 layers in its arrays: leaf * LEAF_STRIDE + layer (a
+    /// packet of a power of two, written at once); an internal node's, * 27
+    static constexpr uint32_t LEAF_STRIDE = 32, NODE_STRIDE = 27;
+    /// The stride of the layers of a node's children (entries per axis `dim`)
+    static uint32_t child_stride(uint32_t dim) { return dim == LOWER_DIM ? LEAF_STRIDE : NODE_STRIDE; }
 
     static Int32 load(const std::vector<int32_t> &v) {
         return drjit::load<Int32>(v.data(), v.size());
@@ -194,7 +264,7 @@ private:
 
     // ---- 2. The leaves' layers ----------------------------------------------------
 
-    /// Per leaf: max and min over each of its 27 layers (leaf * 27 + layer),
+    /// Per leaf: max and min over each of its 27 layers (leaf * LEAF_STRIDE + layer),
     /// the mean of its voxels' bounds, its smallest channel
     struct Leaves {
         Float max, min, low;
@@ -248,30 +318,63 @@ private:
             }
             plane_low = dr::full<Float>(Inf, count * 8u);
             plane_sum = dr::zeros<Float64>(count * 8u);
-            for (uint32_t y = 0; y < 8; ++y) {
+            // A row's parts along z, its voxels' indices counted from `next`
+            auto row = [&](uint32_t y, UInt32 &next, Float row_max[3], Float row_min[3],
+                           Float64 *sum, Float *lowest) {
                 const UInt32 byte = UInt32(mask >> (8 * y)) & 255u;
-                const UInt32 base =
-                    first + (y == 0 ? UInt32(0u) : UInt32(dr::popcnt(mask & ((uint64_t(1) << (8 * y)) - 1u))));
-                Float row_max[3], row_min[3];
                 for (int k = 0; k < 3; ++k) {
                     row_max[k] = -Inf;
                     row_min[k] = Inf;
                 }
                 for (uint32_t z = 0; z < 8; ++z) {
                     const Mask on = ((byte >> z) & 1u) != 0u;
-                    const UInt32 index =
-                        dr::select(on, base + (z == 0 ? UInt32(0u) : dr::popcnt(byte & ((1u << z) - 1u))), 0u);
+                    const UInt32 index = dr::select(on, next, 0u);
+                    next += dr::select(on, 1u, 0u);
                     const Float b = bound.at(index);
                     add_to_parts(z, b, b, row_max, row_min);
-                    if (channels == 3)
-                        plane_low = dr::minimum(plane_low, low.at(index));
-                    plane_sum += Float64(dr::select(dr::isfinite(b), b, 0.f));
+                    if (lowest)
+                        *lowest = dr::minimum(*lowest, low.at(index));
+                    if (sum)
+                        *sum += Float64(dr::select(dr::isfinite(b), b, 0.f));
                 }
+            };
+            // The parts of all y (0, 1, 2), the sum, the smallest channel
+            // from every row; the first and last `ring` rows' parts (3 to 8)
+            // from those rows, read last: their 12 accumulators, held through
+            // the loop, did not fit the registers (the kernel took 1.6x as long)
+            auto row_first = [&](uint32_t y) {
+                return y == 0 ? first
+                              : first + UInt32(dr::popcnt(mask & ((uint64_t(1) << (8 * y)) - 1u)));
+            };
+            auto all_y = [&](const Float row_max[3], const Float row_min[3]) {
                 for (uint32_t kz = 0; kz < 3; ++kz) {
-                    Float mx[3] = { plane_max[kz], plane_max[3 + kz], plane_max[6 + kz] },
-                          mn[3] = { plane_min[kz], plane_min[3 + kz], plane_min[6 + kz] };
+                    plane_max[kz] = dr::maximum(plane_max[kz], row_max[kz]);
+                    plane_min[kz] = dr::minimum(plane_min[kz], row_min[kz]);
+                }
+            };
+            auto edge = [&](uint32_t y) { return y < m_ring || y + m_ring >= 8; };
+            UInt32 next;
+            for (uint32_t y = 0; y < 8; ++y) {
+                if (edge(y))
+                    continue;
+                if (next.index() == 0)
+                    next = row_first(y);
+                Float row_max[3], row_min[3];
+                row(y, next, row_max, row_min, &plane_sum, channels == 3 ? &plane_low : nullptr);
+                all_y(row_max, row_min);
+            }
+            for (uint32_t y = 0; y < 8; ++y) {
+                if (!edge(y))
+                    continue;
+                UInt32 at = row_first(y);
+                Float row_max[3], row_min[3];
+                row(y, at, row_max, row_min, &plane_sum, channels == 3 ? &plane_low : nullptr);
+                all_y(row_max, row_min);
+                for (uint32_t kz = 0; kz < 3; ++kz) {
+                    Float mx[3] = { Float(-Inf), plane_max[3 + kz], plane_max[6 + kz] },
+                          mn[3] = { Float(Inf), plane_min[3 + kz], plane_min[6 + kz] };
                     add_to_parts(y, row_max[kz], row_min[kz], mx, mn);
-                    for (uint32_t ky = 0; ky < 3; ++ky) {
+                    for (uint32_t ky = 1; ky < 3; ++ky) {
                         plane_max[3 * ky + kz] = mx[ky];
                         plane_min[3 * ky + kz] = mn[ky];
                     }
@@ -307,11 +410,16 @@ private:
             low_out = dr::minimum(low_out, dr::gather<Float>(plane_low, plane));
             sum += dr::gather<Float64>(plane_sum, plane);
         }
+        // One packet of LEAF_STRIDE a leaf (27 scatters into one array were
+        // 27 kernels: a scatter into an array with one pending evaluates it)
         const UInt32 at = leaf0 + leaf;
-        for (uint32_t k = 0; k < 27; ++k) {
-            dr::scatter(out.max, mx[k], at * 27u + k);
-            dr::scatter(out.min, mn[k], at * 27u + k);
+        dr::Array<Float, LEAF_STRIDE> pmx, pmn;
+        for (uint32_t k = 0; k < LEAF_STRIDE; ++k) {
+            pmx[k] = k < 27 ? mx[k] : Float(-Inf);
+            pmn[k] = k < 27 ? mn[k] : Float(Inf);
         }
+        dr::scatter(out.max, pmx, at);
+        dr::scatter(out.min, pmn, at);
         dr::scatter(out.low, low_out, at);
         dr::scatter(out.mean, sum * (1.0 / 512.0), at);
         dr::eval(out.max, out.min, out.low, out.mean);
@@ -323,8 +431,8 @@ private:
                        uint32_t channels) const {
         namespace dr = drjit;
         Leaves out;
-        out.max = dr::zeros<Float>(m_leaves * 27u);
-        out.min = dr::zeros<Float>(m_leaves * 27u);
+        out.max = dr::zeros<Float>(m_leaves * LEAF_STRIDE);
+        out.min = dr::zeros<Float>(m_leaves * LEAF_STRIDE);
         out.low = dr::zeros<Float>(m_leaves);
         out.mean = dr::zeros<Float64>(m_leaves);
         for (uint32_t first = 0; first < m_leaves; first += m_leaf_chunk)
@@ -337,7 +445,7 @@ private:
 
     /// The ringed max and min of the cell of entry (x, y, z) of node `node`
     /// (entries per axis `dim`): the layers of its 26 neighbouring cells that
-    /// touch it (a child's from `child_max`/`child_min`, child * 27 +
+    /// touch it (a child's from `child_max`/`child_min`, child * child_stride() +
     /// layer; a value's bound)
     void ring(const Int32 &entries, const Int32 &around, uint32_t dim, const UInt32 &node,
               const UInt32 xyz[3], const Float &child_max, const Float &child_min,
@@ -368,10 +476,42 @@ private:
                     const Mask child = code >= 0;
                     const uint32_t layer = layer_of_direction(dx, dy, dz, false);
                     const Float v = bound.at(UInt32(-1 - code), !child);
-                    const UInt32 ci = UInt32(code) * 27u + layer;
+                    const UInt32 ci = UInt32(code) * child_stride(dim) + layer;
                     mx = dr::maximum(mx, dr::select(child, dr::gather<Float>(child_max, ci, child), v));
                     mn = dr::minimum(mn, dr::select(child, dr::gather<Float>(child_min, ci, child), v));
                 }
+    }
+
+    /// Per node [first_node, first_node + nodes) and class of entry (9 x +
+    /// 3 y + z; per axis 0: the low face, 1: inside, 2: the high face): the
+    /// max and min of the values of the node-sized cells beyond the node that
+    /// such an entry touches (-Inf and Inf: none, or a node)
+    void beyond(const Int32 &around, uint32_t first_node, uint32_t nodes, const Bounds &bound,
+                Float &out_max, Float &out_min) const {
+        namespace dr = drjit;
+        const UInt32 lane = dr::arange<UInt32>(nodes * 27u);
+        const UInt32 node = dr::opaque<UInt32>(first_node) + lane / 27u, cls = lane % 27u;
+        const UInt32 k[3] = { cls / 9u, (cls / 3u) % 3u, cls % 3u };
+        out_max = dr::full<Float>(-Inf, nodes * 27u);
+        out_min = dr::full<Float>(Inf, nodes * 27u);
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dz = -1; dz <= 1; ++dz) {
+                    if (!dx && !dy && !dz)
+                        continue;
+                    const int d[3] = { dx, dy, dz };
+                    Mask touched = true;
+                    for (int a = 0; a < 3; ++a)
+                        if (d[a] != 0)
+                            touched &= k[a] == (d[a] < 0 ? 0u : 2u);
+                    const Int32 code =
+                        dr::gather<Int32>(around, node * 27u + direction_index(dx, dy, dz), touched);
+                    const Mask value = touched && code < 0;
+                    const Float v = bound.at(UInt32(-1 - code), value);
+                    out_max = dr::maximum(out_max, dr::select(value, v, -Inf));
+                    out_min = dr::minimum(out_min, dr::select(value, v, Inf));
+                }
+        dr::eval(out_max, out_min);
     }
 
     /// The ringed max and min (ring()) of every entry of every node of a
@@ -379,7 +519,9 @@ private:
     /// sparse tree are tiles whose 26 neighbours are tiles of their own node:
     /// theirs is the max and min of the 3^3 tile values around, a separable
     /// filter (three passes of three); ring() itself runs only on the others
-    /// (`slow`: children, the node's faces, tiles beside a child; the plan's)
+    /// (`slow`: children, tiles beside a child, entries beside a node of this
+    /// level beyond the node; the plan's); the values beyond the node come
+    /// from beyond()
     void rings(const Int32 &entries, const Int32 &around, const UInt32 &slow, uint32_t dim,
                uint32_t first_node, uint32_t nodes, const Float &child_max,
                const Float &child_min, const Bounds &bound, Float &mx, Float &mn) const {
@@ -408,6 +550,22 @@ private:
                                          side(mn, lane + stride, above, Inf));
             mx = dr::maximum(mx, hi);
             mn = dr::minimum(mn, lo);
+        }
+        {
+            // Entries on the node's faces, edges and corners: the values of
+            // the node-sized cells beyond that they touch (27 classes of
+            // entry per node: per axis the low face, inside, the high face;
+            // a cell beyond that is a node of this level makes them slow)
+            Float beyond_max, beyond_min;
+            beyond(around, first_node, nodes, bound, beyond_max, beyond_min);
+            UInt32 cls = dr::zeros<UInt32>();
+            for (uint32_t a = 0; a < 3; ++a) {
+                const UInt32 c = (lane >> (log2 * (2 - a))) & (dim - 1u);
+                cls = cls * 3u + dr::select(c == 0u, 0u, dr::select(c == dim - 1u, 2u, 1u));
+            }
+            const UInt32 at = (lane >> (3 * log2)) * 27u + cls;
+            mx = dr::maximum(mx, dr::gather<Float>(beyond_max, at));
+            mn = dr::minimum(mn, dr::gather<Float>(beyond_min, at));
         }
         const uint32_t n = uint32_t(dr::width(slow));
         if (n > 0) {
@@ -449,7 +607,7 @@ private:
         const Int32 code = dr::gather<Int32>(entries, node * (face * dim) + e);
         const Mask child = code >= 0;
         const Float v = bound.at(UInt32(-1 - code), !child);
-        const UInt32 ci = UInt32(code) * 27u + layer;
+        const UInt32 ci = UInt32(code) * child_stride(dim) + layer;
         const Float hi = dr::select(child, dr::gather<Float>(child_max, ci, child), v),
                     lo = dr::select(child, dr::gather<Float>(child_min, ci, child), v);
         out_max = dr::block_reduce(ReduceOp::Max, hi, face);
@@ -536,7 +694,7 @@ private:
             const Int32 code = dr::gather<Int32>(m_lower_entries, (node << 12) + e);
             const Mask leaf = code >= 0;
             const UInt32 li = UInt32(code);
-            const Float leaf_max = dr::gather<Float>(leaves.max, li * 27u, leaf);
+            const Float leaf_max = dr::gather<Float>(leaves.max, li * LEAF_STRIDE, leaf);
             const Float v = bound.at(UInt32(-1 - code), !leaf);
             const Float mx = dr::gather<Float>(ring_max, (local << 12) + e),
                         mn = dr::gather<Float>(ring_min, (local << 12) + e);
@@ -734,16 +892,16 @@ private:
 
     /// The loader's mean_bound (src/loader/mean_bound.cpp) on the backend:
     /// the finest cell's bound, per voxel of the box
-    Float64 mean_bound(const UInt32 &table, const Bounds &bound, const Box &box, float factor) const {
+    Float64 mean_bound(const UInt32 &table, const Bounds &bound, const Box &box, float factor,
+                       const Float &clamp) const {
         namespace dr = drjit;
         const float unscale = 1.f / factor;
         auto slot = [&](const UInt32 &at, const Mask &active = true) {
             return dr::reinterpret_array<Float>(dr::gather<UInt32>(table, at, active)) * unscale;
         };
         auto word = [&](const UInt32 &at) { return dr::gather<UInt32>(table, at); };
-        // (opaque: max() changes with every update, and a literal would make
-        // every update's kernels new ones, compiled again)
-        const Float clamp = dr::opaque<Float>(box.clamp);
+        // (`clamp` opaque: max() changes with every update, and a literal
+        // would make every update's kernels new ones, compiled again)
         auto clamped = [&](const Float &b) {
             return Float64(dr::minimum(dr::maximum(b, 0.f), clamp));
         };
@@ -837,6 +995,7 @@ private:
     Int32 m_lower_origins, m_upper_origins, m_tile_origins;
     UInt32 m_lower_parent, m_lower_slow, m_upper_slow;
     std::vector<uint32_t> m_lower_slow_begin; ///< per chunk of lower nodes, its first slow entry
+    mutable KernelReplay m_replay;
 };
 
 } // namespace nanovdb_drjit

@@ -134,31 +134,6 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
             if (r != 1)
                 return refuse("a node that lookups reach not once but never or twice");
 
-    // The entries whose ring is more than the tile values around them
-    auto slow = [](const std::vector<int32_t> &entries, uint32_t log2dim, std::vector<uint32_t> &out) {
-        const uint32_t dim = 1u << log2dim, count = dim * dim * dim;
-        for (size_t at = 0; at < entries.size(); ++at) {
-            const size_t node = at / count;
-            const uint32_t e = uint32_t(at % count);
-            const int c[3] = { int(e >> (2 * log2dim)), int((e >> log2dim) & (dim - 1)),
-                               int(e & (dim - 1)) };
-            bool is_slow = entries[at] >= 0;
-            for (int a = 0; a < 3; ++a)
-                is_slow |= c[a] == 0 || c[a] == int(dim) - 1;
-            for (int dx = -1; dx <= 1 && !is_slow; ++dx)
-                for (int dy = -1; dy <= 1 && !is_slow; ++dy)
-                    for (int dz = -1; dz <= 1 && !is_slow; ++dz) {
-                        const uint32_t n = (uint32_t(c[0] + dx) << (2 * log2dim)) |
-                                           (uint32_t(c[1] + dy) << log2dim) | uint32_t(c[2] + dz);
-                        is_slow |= entries[node * count + n] >= 0;
-                    }
-            if (is_slow)
-                out.push_back(uint32_t(at));
-        }
-    };
-    slow(p.lower_entries, layout::LOWER_LOG2_DIM, p.lower_slow);
-    slow(p.upper_entries, layout::UPPER_LOG2_DIM, p.upper_slow);
-
     // The node-sized cells around each internal node
     auto around = [&](int level, uint32_t count, std::vector<int32_t> &out) {
         const uint32_t log2dim = level == 1 ? 7 : 12;
@@ -169,6 +144,42 @@ std::optional<ndr::MajorantRebuildPlan> majorant_rebuild_plan(const ValidatedGri
     };
     around(1, p.lower_count, p.lower_around);
     around(2, p.upper_count, p.upper_around);
+
+    // The entries whose ring is more than the tile values around them and
+    // the values of the node-sized cells beyond the node that they touch
+    // (rings()): children, tiles beside a child, and entries on the node's
+    // faces that touch a node of the same level beyond them
+    auto slow = [](const std::vector<int32_t> &entries, const std::vector<int32_t> &around,
+                   uint32_t log2dim, std::vector<uint32_t> &out) {
+        const int dim = 1 << log2dim;
+        const uint32_t count = uint32_t(dim) * uint32_t(dim) * uint32_t(dim);
+        for (size_t at = 0; at < entries.size(); ++at) {
+            const size_t node = at / count;
+            const uint32_t e = uint32_t(at % count);
+            const int c[3] = { int(e >> (2 * log2dim)), int((e >> log2dim) & uint32_t(dim - 1)),
+                               int(e & uint32_t(dim - 1)) };
+            bool is_slow = entries[at] >= 0;
+            for (int dx = -1; dx <= 1 && !is_slow; ++dx)
+                for (int dy = -1; dy <= 1 && !is_slow; ++dy)
+                    for (int dz = -1; dz <= 1 && !is_slow; ++dz) {
+                        const int n[3] = { c[0] + dx, c[1] + dy, c[2] + dz };
+                        int side[3];
+                        for (int a = 0; a < 3; ++a)
+                            side[a] = n[a] < 0 ? -1 : n[a] >= dim ? 1 : 0;
+                        if (side[0] == 0 && side[1] == 0 && side[2] == 0)
+                            is_slow |= entries[node * count + ((uint32_t(n[0]) << (2 * log2dim)) |
+                                                               (uint32_t(n[1]) << log2dim) |
+                                                               uint32_t(n[2]))] >= 0;
+                        else
+                            is_slow |= around[node * 27 +
+                                              ndr::direction_index(side[0], side[1], side[2])] >= 0;
+                    }
+            if (is_slow)
+                out.push_back(uint32_t(at));
+        }
+    };
+    slow(p.lower_entries, p.lower_around, layout::LOWER_LOG2_DIM, p.lower_slow);
+    slow(p.upper_entries, p.upper_around, layout::UPPER_LOG2_DIM, p.upper_slow);
     p.lower_origins = std::move(origin[1]);
     p.upper_origins = std::move(origin[2]);
     return p;

@@ -241,18 +241,23 @@ template <typename Float> struct IndexUpdates {
                 bounded.majorant_ratio =
                     bounded.max > 0.f ? float(mean.entry(0) / bounded.max) : 1.f;
                 // The rebuild's arrays, freed, stay in Dr.Jit's allocator
-                // cache, at sizes the step after it does not reuse: LLVM
-                // hands them back. Measured (bench/step_memory.py,
+                // cache. The next rebuild, the same kernels replayed, reuses
+                // them; the step between does not. LLVM hands them back
+                // where they are large. Measured (bench/step_memory.py,
                 // cloudfield_1600, 114.6 M values): the step's peak 4.03 GB
-                // -> 3.57 GB (the host's rebuild: 3.87 GB), and the step no
-                // slower (cloudfield_400 per iteration: 0.0749 s, 0.0748 s).
+                // -> 3.57 GB (the host's rebuild: 3.87 GB). Kept where they
+                // are small: handed back, cloudfield_400's rebuild took 0.5
+                // ms more (of 5), its pages faulted in again (PERF_LOG §48).
                 // CUDA (not measured): left to Dr.Jit's cache.
                 if constexpr (dr::is_llvm_v<Float>)
-                    jit_flush_malloc_cache();
+                    if (rebuild.scratch_bytes() > (size_t(64) << 20))
+                        jit_flush_malloc_cache();
                 Log(Debug, "nanovdbvolume: \"%s\": per-node majorants of the updated values "
-                           "on the backend in %.2f ms", filename,
+                           "on the backend in %.2f ms (%s, scratch about %.0f MB)", filename,
                     std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
-                        .count());
+                        .count(),
+                    rebuild.replay().replayed() ? "replayed" : "traced",
+                    rebuild.scratch_bytes() / 1048576.0);
                 return bounded;
             }
         }
