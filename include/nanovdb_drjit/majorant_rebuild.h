@@ -394,21 +394,28 @@ private:
             mn[k] = Inf;
         }
         Float64 sum = 0.0;
-        for (uint32_t x = 0; x < 8; ++x) {
-            const UInt32 plane = leaf * 8u + x;
-            for (uint32_t kyz = 0; kyz < 9; ++kyz) {
-                const Float hi = dr::gather<Float>(plane_max[kyz], plane),
-                            lo = dr::gather<Float>(plane_min[kyz], plane);
+        // (a leaf's 8 planes are adjacent: one packet each, read at once)
+        using Planes = dr::Array<Float, 8>;
+        for (uint32_t kyz = 0; kyz < 9; ++kyz) {
+            const Planes hi = dr::gather<Planes>(plane_max[kyz], leaf),
+                         lo = dr::gather<Planes>(plane_min[kyz], leaf);
+            for (uint32_t x = 0; x < 8; ++x) {
                 Float a[3] = { mx[kyz], mx[9 + kyz], mx[18 + kyz] },
                       b[3] = { mn[kyz], mn[9 + kyz], mn[18 + kyz] };
-                add_to_parts(x, hi, lo, a, b);
+                add_to_parts(x, hi[x], lo[x], a, b);
                 for (uint32_t kx = 0; kx < 3; ++kx) {
                     mx[9 * kx + kyz] = a[kx];
                     mn[9 * kx + kyz] = b[kx];
                 }
             }
-            low_out = dr::minimum(low_out, dr::gather<Float>(plane_low, plane));
-            sum += dr::gather<Float64>(plane_sum, plane);
+        }
+        {
+            const Planes low_planes = dr::gather<Planes>(plane_low, leaf);
+            const dr::Array<Float64, 8> sums = dr::gather<dr::Array<Float64, 8>>(plane_sum, leaf);
+            for (uint32_t x = 0; x < 8; ++x) {
+                low_out = dr::minimum(low_out, low_planes[x]);
+                sum += sums[x];
+            }
         }
         // One packet of LEAF_STRIDE a leaf (27 scatters into one array were
         // 27 kernels: a scatter into an array with one pending evaluates it)
@@ -610,6 +617,7 @@ private:
         const UInt32 ci = UInt32(code) * child_stride(dim) + layer;
         const Float hi = dr::select(child, dr::gather<Float>(child_max, ci, child), v),
                     lo = dr::select(child, dr::gather<Float>(child_min, ci, child), v);
+        dr::eval(hi, lo); // (one kernel for both, then the reductions)
         out_max = dr::block_reduce(ReduceOp::Max, hi, face);
         out_min = dr::block_reduce(ReduceOp::Min, lo, face);
     }
