@@ -207,9 +207,11 @@ def main():
           f"{len(timed)})" + (f", {frozen.n_recordings} recordings" if frozen else ""), flush=True)
     # nanovdbvolume: what an update costs (issue 36): params.update() (the
     # value policy and max() on the backend), then the per-node majorants
-    # rebuilt (when the walk next asks: mi.traverse asks too); medians of
-    # 10 at the target's values, after 2 untimed (the backend's rebuild
-    # records its kernels at the first, and replays them after)
+    # rebuilt as the next step asks for them: unfrozen, the walk asks for
+    # them and for their mean (local_majorant_ratio; mi.traverse asks the
+    # same); frozen, Dr.Jit's traversal of the inputs asks for the table
+    # alone. Medians of 10 at the target's values, after 2 untimed (the
+    # backend's rebuild records its kernels at the first, replays after)
     update_s, rebuild_s = [], []
     if a.plugin == "nanovdbvolume":
         for r in range(12):
@@ -220,7 +222,11 @@ def main():
             params.update()
             dr.sync_thread()
             t1 = time.perf_counter()
-            mi.traverse(opt)
+            if a.freeze:
+                with dr.scoped_set_flag(dr.JitFlag.EnableObjectTraversal, True):
+                    dr.detail.collect_indices(opt)  # (as dr.freeze collects its inputs)
+            else:
+                mi.traverse(opt)
             dr.sync_thread()
             if r >= 2:
                 update_s.append(t1 - t0)

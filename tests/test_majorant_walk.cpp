@@ -603,10 +603,9 @@ std::vector<uint32_t> rebuilt_table(const ndr::MajorantRebuild<dr::LLVMArray<flo
         b.hi[a] = box.hi[a];
     }
     b.clamp = clamp;
-    dr::LLVMArray<double> m;
-    const UInt32 table =
-        rebuild.table(dr::load<UInt32>(words.data(), words.size()),
-                      dr::load<Float>(values.data(), values.size()), 1, bg, factor, &m, &b);
+    const Float v = dr::load<Float>(values.data(), values.size());
+    const UInt32 table = rebuild.table(dr::load<UInt32>(words.data(), words.size()), v, 1, bg, factor);
+    const dr::LLVMArray<double> m = rebuild.mean(table, v, 1, bg, factor, b);
     std::vector<uint32_t> out(dr::width(table));
     dr::store(out.data(), table);
     mean = m.entry(0);
@@ -687,13 +686,16 @@ TEST_CASE("majorant table: the backend's rebuild equals the host's, bit for bit"
                     const bool small_chunks = ring == 2;
                     auto at = rebuilds.try_emplace(
                         { name, ring }, *plan, small_chunks ? 7u : 1u << 16, small_chunks ? 1u : 256u).first;
-                    const uint32_t replays_before = at->second.replay().replays();
+                    const uint32_t replays_before = at->second.replay().replays(),
+                                   mean_replays_before = at->second.mean_replay().replays();
                     const std::vector<uint32_t> want = host_table(host, factor),
                                                 got = rebuilt_table(at->second, index_words, values,
                                                                     background, factor, box, clamp, mean);
                     // (the same constants as the call before: a replay)
-                    if (again)
+                    if (again) {
                         CHECK(at->second.replay().replays() == replays_before + 1);
+                        CHECK(at->second.mean_replay().replays() == mean_replays_before + 1);
+                    }
                     replays += at->second.replay().replays() - replays_before;
                     // (the mean bound, to rounding: another order of sums, bounds x
                     // factor / factor)

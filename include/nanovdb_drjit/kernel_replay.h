@@ -37,7 +37,7 @@ public:
     uint32_t replays() const { return m_replays; }
     /// Whether the last call replayed
     bool replayed() const { return m_replayed; }
-    /// Whether passes run traced from now on (a recording failed)
+    /// Whether passes run traced from now on (a recording or replay failed)
     bool off() const { return m_off; }
 
     /**
@@ -64,12 +64,18 @@ public:
             }
         }
         jit_eval();
-        if (m_recording && key == m_key && jit_freeze_dry_run(m_recording.get(), in.data())) {
-            std::vector<uint32_t> out(m_outputs);
-            jit_freeze_replay(m_recording.get(), in.data(), out.data());
-            ++m_replays;
-            m_replayed = true;
-            return out;
+        if (m_recording && key == m_key) {
+            try {
+                if (jit_freeze_dry_run(m_recording.get(), in.data())) {
+                    std::vector<uint32_t> out(m_outputs);
+                    jit_freeze_replay(m_recording.get(), in.data(), out.data());
+                    ++m_replays;
+                    m_replayed = true;
+                    return out;
+                }
+            } catch (const std::exception &e) {
+                return give_up("replay", e, {}, pass);
+            }
         }
         m_recording.reset();
         jit_freeze_start(backend, in.data(), uint32_t(in.size()));
@@ -80,13 +86,7 @@ public:
             m_recording.reset(jit_freeze_stop(backend, out.data(), uint32_t(out.size())), Destroy());
         } catch (const std::exception &e) {
             jit_freeze_abort(backend);
-            for (uint32_t i : out)
-                jit_var_dec_ref(i);
-            m_off = true;
-            jit_log(LogLevel::Warn,
-                    "KernelReplay: recording failed (%s); the pass runs traced from now on",
-                    e.what());
-            return pass();
+            return give_up("recording", e, out, pass);
         }
         m_key = key;
         m_outputs = out.size();
@@ -95,6 +95,19 @@ public:
     }
 
 private:
+    /// A recording or replay that failed: the pass traced, now and after
+    template <typename Pass>
+    std::vector<uint32_t> give_up(const char *what, const std::exception &e,
+                                  const std::vector<uint32_t> &partial, Pass &&pass) {
+        for (uint32_t i : partial)
+            jit_var_dec_ref(i);
+        m_recording.reset();
+        m_off = true;
+        jit_log(LogLevel::Warn, "KernelReplay: the %s failed (%s); the pass runs traced from now on",
+                what, e.what());
+        return pass();
+    }
+
     struct Destroy {
         void operator()(Recording *r) const { jit_freeze_destroy(r); }
     };

@@ -128,60 +128,81 @@ public:
 
     /// The table's words from the grid's words and its values (`channels`
     /// floats per value index 1, 2, ...; `background`: index 0's)
-    /// `mean` (optional): the loader's mean_bound() over `box` of that
-    /// table (to rounding: from the value slots / factor, summed in another
-    /// order), a JIT variable of one entry
     UInt32 table(const UInt32 &grid, const Float &values, uint32_t channels,
-                 const float background[3], float factor, Float64 *mean = nullptr,
-                 const Box *box = nullptr) const {
+                 const float background[3], float factor) const {
         namespace dr = drjit;
-        // Replayed (kernel_replay.h): inputs the values, the tree, the plan's
-        // arrays and the clamp (max(), which updates change); constants the
-        // rest, the key
-        const Float clamp = dr::opaque<Float>(box ? box->clamp : 0.f);
-        std::vector<uint32_t> inputs = {
-            grid.index(), values.index(), clamp.index(), m_at.leaf_begin.index(),
-            m_at.leaf_words.index(), m_at.lower_slot.index(), m_at.upper_slot.index(),
-            m_at.tile_slot.index(), m_at.background_slot.index(), m_lower_entries.index(),
-            m_upper_entries.index(), m_lower_around.index(), m_upper_around.index(),
-            m_tile_codes.index(), m_tile_around.index(), m_tile_index.index(),
-            m_background_codes.index(), m_background_layers.index(), m_lower_origins.index(),
-            m_upper_origins.index(), m_tile_origins.index(), m_lower_parent.index(),
-            m_lower_slow.index(), m_upper_slow.index()
-        };
+        // Replayed (kernel_replay.h): inputs the values, the tree and the
+        // plan's arrays; constants the rest, the key
+        std::vector<uint32_t> inputs = plan_inputs();
+        inputs.insert(inputs.end(), { grid.index(), values.index() });
+        const std::vector<uint32_t> out =
+            m_replay.run(dr::backend_v<Float>, inputs, key(channels, background, factor, nullptr),
+                         [&]() {
+                             return std::vector<uint32_t>{
+                                 traced_table(grid, values, channels, background, factor).release()
+                             };
+                         });
+        return UInt32::steal(out[0]);
+    }
+
+    /// The loader's mean_bound() over `box` of a table() of these values (to
+    /// rounding: from the value slots / factor, summed in another order), a
+    /// JIT variable of one entry. A pass of its own, replayed on its own:
+    /// only the walk's choice of majorants reads it (local_majorant_ratio)
+    Float64 mean(const UInt32 &table, const Float &values, uint32_t channels,
+                 const float background[3], float factor, const Box &box) const {
+        namespace dr = drjit;
+        // (inputs: the clamp too, max(), which updates change)
+        const Float clamp = dr::opaque<Float>(box.clamp);
+        std::vector<uint32_t> inputs = plan_inputs();
+        inputs.insert(inputs.end(), { table.index(), values.index(), clamp.index() });
+        const std::vector<uint32_t> out =
+            m_mean_replay.run(dr::backend_v<Float>, inputs, key(channels, background, factor, &box),
+                              [&]() {
+                                  Bounds bound, low;
+                                  value_bounds(values, channels, background, bound, low);
+                                  Float64 m = mean_bound(table, bound, box, factor, clamp);
+                                  dr::eval(m);
+                                  return std::vector<uint32_t>{ m.release() };
+                              });
+        return Float64::steal(out[0]);
+    }
+
+    /// The replays (kernel_replay.h) of table() and of mean()
+    const KernelReplay &replay() const { return m_replay; }
+    const KernelReplay &mean_replay() const { return m_mean_replay; }
+
+private:
+    /// The plan's arrays, which every pass reads
+    std::vector<uint32_t> plan_inputs() const {
+        return { m_at.leaf_begin.index(), m_at.leaf_words.index(), m_at.lower_slot.index(),
+                 m_at.upper_slot.index(), m_at.tile_slot.index(), m_at.background_slot.index(),
+                 m_lower_entries.index(), m_upper_entries.index(), m_lower_around.index(),
+                 m_upper_around.index(), m_tile_codes.index(), m_tile_around.index(),
+                 m_tile_index.index(), m_background_codes.index(), m_background_layers.index(),
+                 m_lower_origins.index(), m_upper_origins.index(), m_tile_origins.index(),
+                 m_lower_parent.index(), m_lower_slow.index(), m_upper_slow.index() };
+    }
+
+    /// A pass's constants (a replay must see the same)
+    static std::vector<uint64_t> key(uint32_t channels, const float background[3], float factor,
+                                     const Box *box) {
         auto bits32 = [](float f) {
             uint32_t u;
             std::memcpy(&u, &f, 4);
             return uint64_t(u);
         };
-        std::vector<uint64_t> key = { channels, bits32(background[0]), bits32(background[1]),
-                                      bits32(background[2]), bits32(factor), mean != nullptr };
+        std::vector<uint64_t> k = { channels, bits32(background[0]), bits32(background[1]),
+                                    bits32(background[2]), bits32(factor) };
         if (box)
             for (int a = 0; a < 3; ++a)
-                key.insert(key.end(), { uint64_t(uint32_t(box->lo[a])), uint64_t(uint32_t(box->hi[a])) });
-        const std::vector<uint32_t> out =
-            m_replay.run(dr::backend_v<Float>, inputs, key, [&]() {
-                Float64 m;
-                UInt32 t = traced_table(grid, values, channels, background, factor,
-                                        mean ? &m : nullptr, box, clamp);
-                std::vector<uint32_t> o = { t.release() };
-                if (mean)
-                    o.push_back(m.release());
-                return o;
-            });
-        if (mean)
-            *mean = Float64::steal(out[1]);
-        return UInt32::steal(out[0]);
+                k.insert(k.end(), { uint64_t(uint32_t(box->lo[a])), uint64_t(uint32_t(box->hi[a])) });
+        return k;
     }
 
-    /// The rebuild's replays (kernel_replay.h)
-    const KernelReplay &replay() const { return m_replay; }
-
-private:
     /// table(), traced
     UInt32 traced_table(const UInt32 &grid, const Float &values, uint32_t channels,
-                        const float background[3], float factor, Float64 *mean, const Box *box,
-                        const Float &clamp) const {
+                        const float background[3], float factor) const {
         namespace dr = drjit;
         Bounds bound, low;
         value_bounds(values, channels, background, bound, low);
@@ -197,10 +218,6 @@ private:
                     upper_min);
         tiles(upper_M, upper_max, bound, factor, out);
         dr::eval(out);
-        if (mean) {
-            *mean = mean_bound(out, bound, *box, factor, clamp);
-            dr::eval(*mean);
-        }
         return out;
     }
 
@@ -1003,7 +1020,7 @@ private:
     Int32 m_lower_origins, m_upper_origins, m_tile_origins;
     UInt32 m_lower_parent, m_lower_slow, m_upper_slow;
     std::vector<uint32_t> m_lower_slow_begin; ///< per chunk of lower nodes, its first slow entry
-    mutable KernelReplay m_replay;
+    mutable KernelReplay m_replay, m_mean_replay;
 };
 
 } // namespace nanovdb_drjit

@@ -30,7 +30,9 @@ def volume_facts(volume):
     value the grid stores), background, local_majorant_ratio, grid_bytes,
     backend_bytes, majorant_bytes, spectral_scale_bytes, wrap_mode ("clamp"
     or "tree"), majorant_rebuild ("backend": a differentiable volume's
-    majorants follow its updates there; "host"), and with count_lookups=True
+    majorants follow its updates there; "host"), majorant_rebuild_replays
+    (backend rebuilds that replayed the first one's kernels), and with
+    count_lookups=True
     the counters (lookup_count, walk_step_count, ...)."""
     import mitsuba as mi
     p = mi.traverse(volume)
@@ -50,6 +52,7 @@ def volume_facts(volume):
         "world_bbox_max": vec("world_bbox_max", float),
         "wrap_mode": "clamp" if p["wrap_clamp"] else "tree",
         "majorant_rebuild": "backend" if p["majorant_rebuild_on_backend"] else "host",
+        "majorant_rebuild_replays": int(p["majorant_rebuild_replays"]),
     }
     for key in ("max", "grid_max", "background", "local_majorant_ratio"):
         facts[key] = float(p[key])

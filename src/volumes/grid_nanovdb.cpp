@@ -367,8 +367,10 @@ public:
         }
         if (p.count_lookups)
             m_sampler.enable_counters();
-        if (m_load.index.active()) // (what an update that changes nothing keeps)
+        if (m_load.index.active()) { // (what an update that changes nothing keeps)
             m_load.index.remember(m_sampler, m_load.facts.max, m_load.facts.max3);
+            m_load.index.bounded.majorant_ratio = m_load.facts.majorant_ratio;
+        }
         Log(Debug, "Loaded \"%s\" grid \"%s\": index box [%s, %s + %s), %zu bytes, max %f",
             m_filename, m_grid_name, m_index_min_host, m_index_min_host, m_resolution_host,
             m_load.facts.grid_bytes, max());
@@ -492,6 +494,7 @@ public:
     void traverse(TraversalCallback *cb) override {
         Base::traverse(cb);
         node_majorants(); // (its facts: an index grid's after an update)
+        local_majorant_ratio();
         m_trav.grid_type = m_load.facts.grid_type;
         m_trav.grid_class = m_load.facts.grid_class;
         m_trav.channels = m_channel_count;
@@ -527,6 +530,8 @@ public:
         // backend (majorant_rebuild, and a tree the plan takes)
         m_trav.rebuild_on_backend = m_load.index.rebuild.valid();
         put("majorant_rebuild_on_backend", m_trav.rebuild_on_backend);
+        m_trav.rebuild_replays = m_load.index.rebuild_replays();
+        put("majorant_rebuild_replays", m_trav.rebuild_replays);
         // level_set="fog" made this grid, a level set in the file, a fog volume
         put("level_set_fogged", m_load.fogged);
         // A .vdb file: converted at load; the class the grid had in the file
@@ -620,6 +625,9 @@ public:
 
     ScalarFloat local_majorant_ratio() const override {
         node_majorants();
+        if (m_load.index.active()) // (the backend's rebuild: computed when asked)
+            const_cast<NanoVDBVolume *>(this)->m_load.facts.majorant_ratio =
+                const_cast<NanoVDBVolume *>(this)->m_load.index.majorant_ratio(m_sampler);
         return m_channel_count == 6 ? 1.f : m_load.facts.majorant_ratio;
     }
 
@@ -1091,6 +1099,7 @@ private:
         ScalarPoint3f bbox_min, bbox_max;
         ScalarFloat max = 0.f;
         bool rebuild_on_backend = false;
+        uint32_t rebuild_replays = 0;
         double grid_bytes = 0, backend_bytes = 0, majorant_bytes = 0, scale_bytes = 0,
                value_bytes = 0;
         double counters[(uint32_t) nanovdb_drjit::Counter::Count] = {};

@@ -55,7 +55,7 @@ struct IndexBounds {
     float max = 0.f;                   ///< lookups' bound (max())
     float max3[3] = { 0.f, 0.f, 0.f }; ///< per channel (Vec3f)
     float grid_max = 0.f;              ///< the largest stored value (rebound() only)
-    float majorant_ratio = 1.f;        ///< mean local bound / max() (rebound() only)
+    float majorant_ratio = 1.f;        ///< mean local bound / max() (the last computed)
 };
 
 template <typename Float> struct IndexUpdates {
@@ -69,6 +69,7 @@ template <typename Float> struct IndexUpdates {
     std::array<float, 3> background{};                   ///< index 0's value (per channel)
     float max_value_given = 0.f;                         ///< max_value, kept after updates
     bool stale = false;                                  ///< values changed since rebound()
+    bool ratio_stale = false;                            ///< majorant_ratio() not yet of the last rebound()
     /// The JIT variable of the values last bounded (held by the sampler
     /// since, so no other variable has its index), and their bounds: an
     /// update that hands back the same variable (dr.enable_grad() alone
@@ -88,6 +89,14 @@ template <typename Float> struct IndexUpdates {
     nanovdb_loader::IndexBox mean_box{}; ///< the box of the mean bound (the load's)
 
     bool active() const { return tree_bytes != 0; }
+
+    /// Backend rebuilds that replayed the first one's kernels (kernel_replay.h)
+    uint32_t rebuild_replays() const {
+        if constexpr (drjit::is_jit_v<Float>)
+            return rebuild.replay().replays();
+        else
+            return 0;
+    }
 
     /// The tree in host memory: the sampler's block itself (scalar, LLVM:
     /// the backend reads it in place), or the copy kept for CUDA
@@ -205,8 +214,35 @@ template <typename Float> struct IndexUpdates {
         return b;
     }
 
+    /// The mean local bound / max() of the table rebound() last built on
+    /// the backend: the walk's choice between local and global majorants
+    /// reads it on the host (one number back), so it is computed when asked,
+    /// not with the table: a frozen step's replays never ask. Inside a
+    /// recording (dr.freeze), which may not read back, the last one computed
+    /// (the recording's choice holds for its replays anyway)
+    float majorant_ratio(const Sampler &s) {
+        namespace dr = drjit;
+        if constexpr (dr::is_jit_v<Float>) {
+            if (ratio_stale && !mitsuba::recording_frozen_function<Float>()) {
+                typename decltype(rebuild)::Box box;
+                for (int a = 0; a < 3; ++a) {
+                    box.lo[a] = mean_box.lo[a];
+                    box.hi[a] = mean_box.hi[a];
+                }
+                box.clamp = bounded.max;
+                const dr::float64_array_t<Detached> mean =
+                    rebuild.mean(dr::detach<false>(s.majorants.table), dr::detach<false>(s.index_values),
+                                 s.index_channels, background.data(), rebuild_factor, box);
+                bounded.majorant_ratio = bounded.max > 0.f ? float(mean.entry(0) / bounded.max) : 1.f;
+                ratio_stale = false;
+            }
+        }
+        return bounded.majorant_ratio;
+    }
+
     /// The per-node majorants and max_in_box() again (see above); sets the
-    /// sampler's bounds and returns them
+    /// sampler's bounds and returns them (the backend's: its majorant_ratio
+    /// when majorant_ratio() is asked)
     IndexBounds rebound(Sampler &s, bool clamp, const std::string &filename,
                         const std::string &grid_name) {
         namespace dr = drjit;
@@ -221,25 +257,15 @@ template <typename Float> struct IndexUpdates {
                 dr::scoped_disable_symbolic<Detached> unmasked;
                 using UInt32 = dr::uint32_array_t<Detached>;
                 auto &m = s.majorants;
-                typename decltype(rebuild)::Box box;
-                for (int a = 0; a < 3; ++a) {
-                    box.lo[a] = mean_box.lo[a];
-                    box.hi[a] = mean_box.hi[a];
-                }
-                box.clamp = bounded.max;
-                dr::float64_array_t<Detached> mean;
-                m.table = rebuild.table(dr::detach<false>(s.grid), dr::detach<false>(values), s.index_channels,
-                                        background.data(), rebuild_factor, &mean, &box);
+                m.table = rebuild.table(dr::detach<false>(s.grid), dr::detach<false>(values),
+                                        s.index_channels, background.data(), rebuild_factor);
                 m.background = dr::reinterpret_array<Detached>(dr::gather<UInt32>(
                     dr::detach<false>(m.table), dr::opaque<UInt32>(rebuild.background_slot())));
                 m.clamp = dr::opaque<Detached>(bounded.max); // (values_changed()'s max())
                 if (m.clamp_to_box)
                     m.outside = m.clamp;
                 stale = false;
-                // (the walk's choice between local and global majorants
-                // reads it on the host: one number back)
-                bounded.majorant_ratio =
-                    bounded.max > 0.f ? float(mean.entry(0) / bounded.max) : 1.f;
+                ratio_stale = true; // (majorant_ratio(), when asked)
                 // The rebuild's arrays, freed, stay in Dr.Jit's allocator
                 // cache. The next rebuild, the same kernels replayed, reuses
                 // them; the step between does not. LLVM hands them back
@@ -252,8 +278,9 @@ template <typename Float> struct IndexUpdates {
                 if constexpr (dr::is_llvm_v<Float>)
                     if (rebuild.scratch_bytes() > (size_t(64) << 20))
                         jit_flush_malloc_cache();
+                // (the host's part: a replay's kernels run on after it)
                 Log(Debug, "nanovdbvolume: \"%s\": per-node majorants of the updated values "
-                           "on the backend in %.2f ms (%s, scratch about %.0f MB)", filename,
+                           "on the backend, %.2f ms on the host (%s, scratch about %.0f MB)", filename,
                     std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
                         .count(),
                     rebuild.replay().replayed() ? "replayed" : "traced",
@@ -297,6 +324,7 @@ template <typename Float> struct IndexUpdates {
                 b.max3[k] = set.max3[k];
             b.grid_max = g.grid_max;
             b.majorant_ratio = b.max > 0.f ? float(set.mean_bound / b.max) : 1.f;
+            bounded.majorant_ratio = b.majorant_ratio; // (majorant_ratio()'s)
             stale = false;
         } catch (const loader::Error &e) {
             Throw("nanovdbvolume: after an update of \"data\": %s", e.what());
