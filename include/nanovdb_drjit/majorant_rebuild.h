@@ -476,34 +476,28 @@ private:
               const Bounds &bound, Float &mx, Float &mn) const {
         namespace dr = drjit;
         const uint32_t log2 = dim == LOWER_DIM ? 4 : 5, count = dim * dim * dim;
-        for (int dx = -1; dx <= 1; ++dx)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dz = -1; dz <= 1; ++dz) {
-                    if (!dx && !dy && !dz)
-                        continue;
-                    const int d[3] = { dx, dy, dz };
-                    UInt32 side = dr::zeros<UInt32>(), at = dr::zeros<UInt32>();
-                    for (int a = 0; a < 3; ++a) {
-                        const UInt32 c = xyz[a] + uint32_t(d[a]); // (wraps below 0)
-                        // 0: the node below, 1: this one, 2: the one above
-                        const UInt32 s = dr::select(c == uint32_t(-1), 0u,
-                                                    dr::select(c == dim, 2u, 1u));
-                        side = side * 3u + s;
-                        at = (at << log2) | (c & (dim - 1u));
-                    }
-                    const Int32 node_code = dr::gather<Int32>(around, node * 27u + side);
-                    const Mask in_node = node_code >= 0;
-                    const Int32 code = dr::select(
-                        in_node,
-                        dr::gather<Int32>(entries, UInt32(node_code) * count + at, in_node),
-                        node_code);
-                    const Mask child = code >= 0;
-                    const uint32_t layer = layer_of_direction(dx, dy, dz, false);
-                    const Float v = bound.at(UInt32(-1 - code), !child);
-                    const UInt32 ci = UInt32(code) * child_stride(dim) + layer;
-                    mx = dr::maximum(mx, dr::select(child, dr::gather<Float>(child_max, ci, child), v));
-                    mn = dr::minimum(mn, dr::select(child, dr::gather<Float>(child_min, ci, child), v));
-                }
+        for_each_direction([&](int dx, int dy, int dz) {
+            const int d[3] = { dx, dy, dz };
+            UInt32 side = dr::zeros<UInt32>(), at = dr::zeros<UInt32>();
+            for (int a = 0; a < 3; ++a) {
+                const UInt32 c = xyz[a] + uint32_t(d[a]); // (wraps below 0)
+                // 0: the node below, 1: this one, 2: the one above
+                const UInt32 s = dr::select(c == uint32_t(-1), 0u, dr::select(c == dim, 2u, 1u));
+                side = side * 3u + s;
+                at = (at << log2) | (c & (dim - 1u));
+            }
+            const Int32 node_code = dr::gather<Int32>(around, node * 27u + side);
+            const Mask in_node = node_code >= 0;
+            const Int32 code = dr::select(
+                in_node, dr::gather<Int32>(entries, UInt32(node_code) * count + at, in_node),
+                node_code);
+            const Mask child = code >= 0;
+            const uint32_t layer = layer_of_direction(dx, dy, dz, false);
+            const Float v = bound.at(UInt32(-1 - code), !child);
+            const UInt32 ci = UInt32(code) * child_stride(dim) + layer;
+            mx = dr::maximum(mx, dr::select(child, dr::gather<Float>(child_max, ci, child), v));
+            mn = dr::minimum(mn, dr::select(child, dr::gather<Float>(child_min, ci, child), v));
+        });
     }
 
     /// Per node [first_node, first_node + nodes) and class of entry (9 x +
@@ -518,23 +512,19 @@ private:
         const UInt32 k[3] = { cls / 9u, (cls / 3u) % 3u, cls % 3u };
         out_max = dr::full<Float>(-Inf, nodes * 27u);
         out_min = dr::full<Float>(Inf, nodes * 27u);
-        for (int dx = -1; dx <= 1; ++dx)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dz = -1; dz <= 1; ++dz) {
-                    if (!dx && !dy && !dz)
-                        continue;
-                    const int d[3] = { dx, dy, dz };
-                    Mask touched = true;
-                    for (int a = 0; a < 3; ++a)
-                        if (d[a] != 0)
-                            touched &= k[a] == (d[a] < 0 ? 0u : 2u);
-                    const Int32 code =
-                        dr::gather<Int32>(around, node * 27u + direction_index(dx, dy, dz), touched);
-                    const Mask value = touched && code < 0;
-                    const Float v = bound.at(UInt32(-1 - code), value);
-                    out_max = dr::maximum(out_max, dr::select(value, v, -Inf));
-                    out_min = dr::minimum(out_min, dr::select(value, v, Inf));
-                }
+        for_each_direction([&](int dx, int dy, int dz) {
+            const int d[3] = { dx, dy, dz };
+            Mask touched = true;
+            for (int a = 0; a < 3; ++a)
+                if (d[a] != 0)
+                    touched &= k[a] == (d[a] < 0 ? 0u : 2u);
+            const Int32 code =
+                dr::gather<Int32>(around, node * 27u + direction_index(dx, dy, dz), touched);
+            const Mask value = touched && code < 0;
+            const Float v = bound.at(UInt32(-1 - code), value);
+            out_max = dr::maximum(out_max, dr::select(value, v, -Inf));
+            out_min = dr::minimum(out_min, dr::select(value, v, Inf));
+        });
         dr::eval(out_max, out_min);
     }
 
@@ -864,21 +854,14 @@ private:
             const Int32 code = dr::gather<Int32>(m_tile_codes, tile);
             const Mask child = code >= 0;
             Float e = bound.at(UInt32(-1 - code), !child);
-            for (int dx = -1; dx <= 1; ++dx)
-                for (int dy = -1; dy <= 1; ++dy)
-                    for (int dz = -1; dz <= 1; ++dz) {
-                        if (!dx && !dy && !dz)
-                            continue;
-                        const Int32 c = dr::gather<Int32>(m_tile_around,
-                                                          tile * 27u + direction_index(dx, dy, dz),
-                                                          !child);
-                        const Mask upper = c >= 0 && !child;
-                        const Float layer = dr::gather<Float>(
-                            upper_max, UInt32(c) * 27u + layer_of_direction(dx, dy, dz, false), upper);
-                        e = dr::maximum(e, dr::select(upper, layer,
-                                                      bound.at(UInt32(-1 - c),
-                                                                        !child && !upper)));
-                    }
+            for_each_direction([&](int dx, int dy, int dz) {
+                const Int32 c =
+                    dr::gather<Int32>(m_tile_around, tile * 27u + direction_index(dx, dy, dz), !child);
+                const Mask upper = c >= 0 && !child;
+                const Float layer = dr::gather<Float>(
+                    upper_max, UInt32(c) * NODE_STRIDE + layer_of_direction(dx, dy, dz, false), upper);
+                e = dr::maximum(e, dr::select(upper, layer, bound.at(UInt32(-1 - c), !child && !upper)));
+            });
             e = dr::select(child, dr::gather<Float>(upper_M, UInt32(code), child), e);
             dr::scatter(out, bits(e * factor),
                         m_at.tile_slot + dr::gather<UInt32>(m_tile_index, tile));
@@ -891,7 +874,7 @@ private:
             const Float layer = dr::select(
                 upper,
                 dr::gather<Float>(upper_max,
-                                  UInt32(code) * 27u + dr::gather<UInt32>(m_background_layers, pair),
+                                  UInt32(code) * NODE_STRIDE + dr::gather<UInt32>(m_background_layers, pair),
                                   upper),
                 bound.at(UInt32(-1 - code), !upper));
             bg = dr::maximum(bg, dr::max(layer));

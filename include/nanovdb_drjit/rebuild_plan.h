@@ -35,6 +35,15 @@ constexpr uint32_t direction_index(int dx, int dy, int dz) {
     return uint32_t((dx + 1) * 9 + (dy + 1) * 3 + (dz + 1));
 }
 
+/// fn(dx, dy, dz) for the 26 directions around a cell, in direction_index order
+template <typename Fn> void for_each_direction(Fn &&fn) {
+    for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy)
+            for (int dz = -1; dz <= 1; ++dz)
+                if (dx || dy || dz)
+                    fn(dx, dy, dz);
+}
+
 /// Which layer of a cell a neighbour in direction d touches, per axis: 0 all
 /// of it, 1 its low end, 2 its high end; as 9 sx + 3 sy + sz (0..26). The
 /// neighbour at +x touches the cell's low x end (its own layer: `ours`)
