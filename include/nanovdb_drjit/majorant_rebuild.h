@@ -24,13 +24,14 @@
          word;
       4. the lower nodes' layers (what an upper tile's ring reads of them);
       5. the upper nodes' entries, the same way, and their layers;
-      6. the root tiles and the background; and, when asked, the mean
-         bound (local_majorant_ratio) of the new table.
+      6. the root tiles and the background; and, in a pass of its own
+         when asked, the mean bound (local_majorant_ratio) of the table.
 
     The first call records its kernels, later ones replay them on the new
-    values (kernel_replay.h): the host traces nothing. Measured (llvm_ad_rgb,
-    2 cores): 4.2 ms for cloudfield_400's 1.8 M values, against 36 ms for
-    the host's passes (bench/PERF_LOG.md §46, §48).
+    values (kernel_replay.h): the host traces nothing. The mean bound is a
+    pass of its own (mean()), run when asked. Measured (llvm_ad_rgb, 2
+    cores): 3.2 ms for cloudfield_400's 1.8 M values (4.9 with the mean),
+    against 36 ms for the host's passes (bench/PERF_LOG.md §46, §48).
 
     Sums of means (the controls' c) are added in another order than the
     host's: a control can differ where its c lies within rounding of a
