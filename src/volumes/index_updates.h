@@ -269,12 +269,16 @@ template <typename Float> struct IndexUpdates {
                 // The rebuild's arrays, freed, stay in Dr.Jit's allocator
                 // cache. The next rebuild, the same kernels replayed, reuses
                 // them; the step between does not. LLVM hands them back
-                // where they are large. Measured (bench/step_memory.py,
-                // cloudfield_1600, 114.6 M values): the step's peak 4.03 GB
-                // -> 3.57 GB (the host's rebuild: 3.87 GB). Kept where they
-                // are small: handed back, cloudfield_400's rebuild took 0.5
-                // ms more (of 5), its pages faulted in again (PERF_LOG §48).
-                // CUDA (not measured): left to Dr.Jit's cache.
+                // (and with them what the step left there) where they are
+                // large. Measured (bench/step_memory.py, cloudfield_1600,
+                // 114.6 M values): the step's peak 4.03 GB -> 3.57 GB (the
+                // host's rebuild: 3.87 GB). Kept where they are small:
+                // handed back, the next rebuild and step fault their pages
+                // in again (before a frozen step: cloudfield's rebuild
+                // 3.1-3.3 -> 3.6-5.2 ms, the cloud's 3.9 -> 8.6 ms), at the
+                // cost of a higher peak (the smoke's fit: 43-45 -> 62 MB
+                // above the loaded level; PERF_LOG §48). CUDA (not
+                // measured): left to Dr.Jit's cache.
                 if constexpr (dr::is_llvm_v<Float>)
                     if (rebuild.scratch_bytes() > (size_t(64) << 20))
                         jit_flush_malloc_cache();
