@@ -371,12 +371,11 @@ private:
                 }
             };
             auto edge = [&](uint32_t y) { return y < m_ring || y + m_ring >= 8; };
-            UInt32 next;
+            // (the middle rows, y in [ring, 8 - ring), one after the other)
+            UInt32 next = 2 * m_ring < 8 ? row_first(m_ring) : UInt32();
             for (uint32_t y = 0; y < 8; ++y) {
                 if (edge(y))
                     continue;
-                if (next.index() == 0)
-                    next = row_first(y);
                 Float row_max[3], row_min[3];
                 row(y, next, row_max, row_min, &plane_sum, channels == 3 ? &plane_low : nullptr);
                 all_y(row_max, row_min);

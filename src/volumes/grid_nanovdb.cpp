@@ -493,8 +493,7 @@ public:
      */
     void traverse(TraversalCallback *cb) override {
         Base::traverse(cb);
-        node_majorants(); // (its facts: an index grid's after an update)
-        local_majorant_ratio();
+        local_majorant_ratio(); // (its facts: an index grid's majorants after an update, their mean)
         m_trav.grid_type = m_load.facts.grid_type;
         m_trav.grid_class = m_load.facts.grid_class;
         m_trav.channels = m_channel_count;
@@ -625,9 +624,10 @@ public:
 
     ScalarFloat local_majorant_ratio() const override {
         node_majorants();
-        if (m_load.index.active()) // (the backend's rebuild: computed when asked)
-            const_cast<NanoVDBVolume *>(this)->m_load.facts.majorant_ratio =
-                const_cast<NanoVDBVolume *>(this)->m_load.index.majorant_ratio(m_sampler);
+        if (m_load.index.active()) { // (the backend's rebuild: computed when asked)
+            auto *self = const_cast<NanoVDBVolume *>(this);
+            self->m_load.facts.majorant_ratio = self->m_load.index.majorant_ratio(m_sampler);
+        }
         return m_channel_count == 6 ? 1.f : m_load.facts.majorant_ratio;
     }
 
